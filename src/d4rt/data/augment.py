@@ -1,0 +1,138 @@
+"""The paper's augmentations (App. A), applied consistently with the geometry.
+
+Geometric ones are a ``View`` (crop / zoom-in / temporal stride): they change the intrinsics and the
+query coordinates and frame indices exactly, so targets from the oracle stay exact. Photometric ones
+(colour jitter with one set of parameters for the whole clip, colour drop, Gaussian blur) change only
+the pixels. Ranges the paper does not give are documented choices here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from d4rt.errors import UserError
+from d4rt.geometry.view import View
+
+
+@dataclass
+class AugmentConfig:
+    """Augmentation knobs. Paper: colour drop p 0.2, blur p 0.4, crop 0.3-1.0 of the frame with a
+    log-uniform aspect ratio, zoom-in p 0.05, random temporal stride; the rest are our choices."""
+
+    enabled: bool = True
+    crop_scale: tuple[float, float] = (0.3, 1.0)  # fraction of the frame's area
+    crop_aspect: tuple[float, float] = (0.5, 2.0)  # log-uniform range of the crop's width / height
+    zoom_prob: float = 0.05
+    zoom_scale: tuple[float, float] = (0.05, 0.3)  # a zoom-in is a crop this small, upsampled
+    max_stride: int = 3
+    jitter_prob: float = 0.8
+    brightness: float = 0.3
+    contrast: float = 0.3
+    saturation: float = 0.3
+    hue: float = 0.05
+    color_drop_prob: float = 0.2
+    blur_prob: float = 0.4
+    blur_sigma: tuple[float, float] = (0.1, 1.5)  # pixels of the output video
+
+    def validate(self) -> None:
+        lo, hi = self.crop_scale
+        if not 0 < lo <= hi <= 1:
+            raise UserError(f"crop_scale must satisfy 0 < low <= high <= 1, got {self.crop_scale}")
+        if not 0 < self.crop_aspect[0] <= self.crop_aspect[1]:
+            raise UserError(f"crop_aspect must be a positive (low, high) range, got {self.crop_aspect}")
+        if self.max_stride < 1:
+            raise UserError(f"max_stride must be >= 1, got {self.max_stride}")
+
+
+def sample_stride(rng: np.random.Generator, source_frames: int, frames: int, max_stride: int) -> int:
+    """A random temporal stride that still fits ``frames`` frames in ``source_frames``."""
+    if source_frames < frames:
+        raise UserError(f"clip has {source_frames} frames, fewer than the {frames} asked for")
+    fit = (source_frames - 1) // max(frames - 1, 1) if frames > 1 else max_stride
+    return int(rng.integers(1, max(1, min(max_stride, fit)) + 1))
+
+
+def sample_view(rng: np.random.Generator, source_frames: int, source_size: tuple[int, int], frames: int,
+                size: tuple[int, int], config: AugmentConfig, stride: int | None = None) -> View:
+    """A random crop (or zoom-in) of a random strided run of frames, resized to ``size`` (H, W)."""
+    hs, ws = source_size
+    if not config.enabled:
+        return View(source_size, (0, 0, ws, hs), size, tuple(range(frames)))
+    if stride is None:
+        stride = sample_stride(rng, source_frames, frames, config.max_stride)
+    start = int(rng.integers(0, source_frames - stride * (frames - 1)))
+    frame_ids = tuple(start + stride * k for k in range(frames))
+    scale = config.zoom_scale if rng.uniform() < config.zoom_prob else config.crop_scale
+    area = hs * ws
+    for _ in range(10):  # like torchvision's RandomResizedCrop: retry, then fall back to the full frame
+        target = rng.uniform(*scale) * area
+        aspect = math.exp(rng.uniform(math.log(config.crop_aspect[0]), math.log(config.crop_aspect[1])))
+        w = int(round(math.sqrt(target * aspect)))
+        h = int(round(math.sqrt(target / aspect)))
+        if 1 <= w <= ws and 1 <= h <= hs:
+            x0 = int(rng.integers(0, ws - w + 1))
+            y0 = int(rng.integers(0, hs - h + 1))
+            return View(source_size, (x0, y0, w, h), size, frame_ids)
+    return View(source_size, (0, 0, ws, hs), size, frame_ids)
+
+
+def photometric_augment(video: torch.Tensor, rng: np.random.Generator, config: AugmentConfig) -> torch.Tensor:
+    """Colour jitter (one draw for the whole clip), colour drop and Gaussian blur.
+
+    video: (T, H, W, 3) float in [0, 1] -> same shape, in [0, 1].
+    """
+    if not config.enabled:
+        return video
+    x = video.permute(0, 3, 1, 2)  # (T, 3, H, W)
+    if rng.uniform() < config.jitter_prob:
+        for op in rng.permutation(4):
+            if op == 0:
+                x = x * rng.uniform(1 - config.brightness, 1 + config.brightness)
+            elif op == 1:
+                mean = _gray(x).mean()  # one mean over the whole clip keeps frames consistent
+                x = (x - mean) * rng.uniform(1 - config.contrast, 1 + config.contrast) + mean
+            elif op == 2:
+                g = _gray(x)
+                x = (x - g) * rng.uniform(1 - config.saturation, 1 + config.saturation) + g
+            else:
+                x = _rotate_hue(x, rng.uniform(-config.hue, config.hue))
+            x = x.clamp(0.0, 1.0)
+    if rng.uniform() < config.color_drop_prob:
+        x = _gray(x).expand_as(x)
+    if rng.uniform() < config.blur_prob:
+        x = _gaussian_blur(x, rng.uniform(*config.blur_sigma))
+    return x.clamp(0.0, 1.0).permute(0, 2, 3, 1).contiguous()
+
+
+def _gray(x: torch.Tensor) -> torch.Tensor:
+    return (0.299 * x[:, 0:1] + 0.587 * x[:, 1:2] + 0.114 * x[:, 2:3])
+
+
+def _rotate_hue(x: torch.Tensor, fraction: float) -> torch.Tensor:
+    """Rotate hue by ``fraction`` of a turn: a rotation about the grey axis of RGB space."""
+    angle = 2 * math.pi * fraction
+    c, s = math.cos(angle), math.sin(angle)
+    k = 1.0 / 3.0
+    sq = math.sqrt(k)
+    m = torch.tensor([
+        [c + (1 - c) * k, k * (1 - c) - sq * s, k * (1 - c) + sq * s],
+        [k * (1 - c) + sq * s, c + k * (1 - c), k * (1 - c) - sq * s],
+        [k * (1 - c) - sq * s, k * (1 - c) + sq * s, c + k * (1 - c)],
+    ], dtype=x.dtype, device=x.device)
+    return torch.einsum("ij,tjhw->tihw", m, x)
+
+
+def _gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    radius = max(1, int(math.ceil(3 * sigma)))
+    k = torch.exp(-(torch.arange(-radius, radius + 1, dtype=x.dtype, device=x.device) ** 2) / (2 * sigma**2))
+    k = k / k.sum()
+    t, c, h, w = x.shape
+    y = x.reshape(t * c, 1, h, w)
+    y = F.conv2d(F.pad(y, (radius, radius, 0, 0), mode="replicate"), k.view(1, 1, 1, -1))
+    y = F.conv2d(F.pad(y, (0, 0, radius, radius), mode="replicate"), k.view(1, 1, -1, 1))
+    return y.reshape(t, c, h, w)

@@ -1,0 +1,142 @@
+"""Torch datasets that yield (video, queries, targets) training samples from synthetic clips.
+
+Clips are rendered on the fly from seeds (``source="render"``) or read from ``d4rt generate`` output
+(``source="files"``: any npz in the clip layout, which is also the "bring your own data" format).
+Every sample is a deterministic function of (seed, epoch, index), which makes runs reproducible and
+resumable.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from d4rt.data.augment import AugmentConfig, photometric_augment, sample_stride, sample_view
+from d4rt.data.sampler import QuerySampler, QuerySamplerConfig
+from d4rt.errors import UserError
+from d4rt.geometry.view import View
+from d4rt.synthetic.clip import Clip, _resize_rgb, load_clip
+from d4rt.synthetic.generate import render_clip
+
+TARGET_KEYS = ("points", "uv", "visibility", "motion", "normals")
+
+
+@dataclass
+class DatasetConfig:
+    """Where clips come from and what a sample looks like.
+
+    frames, size: the sample's clip length and (H, W) (the model's encoder input, usually square).
+    render_pixels: on-the-fly clips are rendered at this many pixels per frame (aspect ratio drawn
+    log-uniformly from ``render_aspect``) before cropping. num_clips: dataset length for rendering.
+    """
+
+    source: str = "render"
+    directory: str | None = None
+    num_clips: int = 10000
+    seed: int = 0
+    frames: int = 16
+    size: tuple[int, int] = (128, 128)
+    render_pixels: int = 160 * 160
+    render_aspect: tuple[float, float] = (0.5, 2.0)
+    scene_options: dict = field(default_factory=dict)
+    augment: AugmentConfig = field(default_factory=AugmentConfig)
+    sampler: QuerySamplerConfig = field(default_factory=QuerySamplerConfig)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.augment, dict):
+            self.augment = AugmentConfig(**self.augment)
+        if isinstance(self.sampler, dict):
+            self.sampler = QuerySamplerConfig(**self.sampler)
+        self.size = tuple(self.size)
+        if self.source not in ("render", "files"):
+            raise UserError(f"dataset source must be 'render' or 'files', got {self.source!r}")
+        if self.frames < 1 or min(self.size) < 1:
+            raise UserError(f"frames and size must be positive, got {self.frames}, {self.size}")
+
+
+def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampler: QuerySampler,
+                         augment: AugmentConfig) -> dict:
+    """One training sample from ``clip`` seen through ``view``.
+
+    Returns torch tensors: ``video (T,H,W,3) float32`` in [0, 1] (augmented), ``queries (N,5) float32``
+    in the view's coordinates, targets ``points (N,3)``, ``uv (N,2)``, ``visibility (N,)``,
+    ``motion (N,3)``, ``normals (N,3)`` (zeros where undefined), masks ``valid (N,)`` and
+    ``uv_valid (N,)`` (bool), ``aspect_ratio ()`` (the crop's width / height in source pixels), and the
+    view's ``intrinsics (T,3,3)`` and ``cam_to_world (T,4,4)`` (float32).
+    """
+    drawn = sampler.sample(clip, rng, view)
+    answers = clip.oracle.query(drawn["source_queries"])  # exact: queries sit where the source is exact
+    uv = view.uv_from_source(answers["uv"])
+    inside = (uv >= 0).all(1) & (uv <= 1).all(1)
+    valid, uv_valid = answers["valid"], answers["uv_valid"]
+    targets = {
+        "points": answers["points"],
+        "uv": uv,
+        "visibility": answers["visibility"] * inside.to(answers["visibility"].dtype),
+        "motion": answers["motion"],
+        "normals": answers["normals"],
+    }
+    frames = list(view.frames)
+    x0, y0, w, h = view.crop
+    rgb = _resize_rgb(clip.rgb[frames, y0:y0 + h, x0:x0 + w], view.size)
+    video = photometric_augment(torch.from_numpy(rgb).float() / 255.0, rng, augment)
+    sample = {k: torch.nan_to_num(v, nan=0.0).float() for k, v in targets.items()}
+    sample.update(
+        video=video,
+        queries=torch.from_numpy(drawn["queries"]).float(),
+        valid=valid,
+        uv_valid=uv_valid,
+        aspect_ratio=torch.tensor(w / h, dtype=torch.float32),
+        intrinsics=torch.from_numpy(view.intrinsics(clip.intrinsics)).float(),
+        cam_to_world=torch.from_numpy(clip.cam_to_world[frames]).float(),
+    )
+    return sample
+
+
+class ClipQueryDataset(torch.utils.data.Dataset):
+    """Map-style dataset of training samples; ``set_epoch`` changes the random draws per epoch."""
+
+    def __init__(self, config: DatasetConfig):
+        self.config = config
+        config.augment.validate()
+        self.sampler = QuerySampler(config.sampler)
+        self.epoch = 0
+        if config.source == "files":
+            if not config.directory:
+                raise UserError("dataset source 'files' needs a directory of .npz clips")
+            self.files = sorted(Path(config.directory).glob("*.npz"))
+            if not self.files:
+                raise UserError(f"no .npz clips found in {config.directory}")
+        else:
+            self.files = []
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def __len__(self) -> int:
+        return len(self.files) if self.files else self.config.num_clips
+
+    def __getitem__(self, index: int) -> dict:
+        if not 0 <= index < len(self):
+            raise IndexError(f"index {index} out of range for {len(self)} samples")
+        cfg = self.config
+        rng = np.random.default_rng([cfg.seed, self.epoch, index])
+        if self.files:
+            clip = load_clip(self.files[index])
+            stride = None
+        else:
+            stride = sample_stride(rng, cfg.frames * cfg.augment.max_stride, cfg.frames, cfg.augment.max_stride) \
+                if cfg.augment.enabled else 1
+            aspect = math.exp(rng.uniform(*np.log(cfg.render_aspect)))
+            height = max(8, int(round(math.sqrt(cfg.render_pixels / aspect))))
+            width = max(8, int(round(math.sqrt(cfg.render_pixels * aspect))))
+            clip_seed = int(rng.integers(0, 2**31 - 1))
+            clip = render_clip(clip_seed, cfg.frames, height, width, time_stride=stride, **cfg.scene_options)
+            stride = 1  # the stride is already in the rendered frame times
+        view = sample_view(rng, clip.num_frames, (clip.height, clip.width), cfg.frames, cfg.size, cfg.augment,
+                           stride=stride)
+        return make_training_sample(clip, view, rng, self.sampler, cfg.augment)

@@ -1,0 +1,16 @@
+"""Pure geometric functions (camera model, rigid transforms, image-plane views); no I/O, no learning."""
+
+from d4rt.geometry.camera import pixel_to_uv, project, unproject_depth, uv_to_pixel
+from d4rt.geometry.transforms import apply_transform, invert_rigid, rotation_about_axis
+from d4rt.geometry.view import View
+
+__all__ = [
+    "View",
+    "apply_transform",
+    "invert_rigid",
+    "pixel_to_uv",
+    "project",
+    "rotation_about_axis",
+    "unproject_depth",
+    "uv_to_pixel",
+]

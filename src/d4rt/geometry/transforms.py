@@ -1,0 +1,66 @@
+"""Rigid transforms as 4x4 homogeneous matrices (numpy or torch, any leading shape)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+Array = np.ndarray | torch.Tensor
+
+
+def invert_rigid(transform: Array) -> Array:
+    """Inverse of rigid transforms [R | t]: [R^T | -R^T t]. transform: (..., 4, 4)."""
+    rot = transform[..., :3, :3]
+    trans = transform[..., :3, 3:]
+    if isinstance(transform, torch.Tensor):
+        rot_t = rot.transpose(-1, -2)
+        out = torch.zeros_like(transform)
+    else:
+        rot_t = np.swapaxes(rot, -1, -2)
+        out = np.zeros_like(transform)
+    out[..., :3, :3] = rot_t
+    out[..., :3, 3:] = -(rot_t @ trans)
+    out[..., 3, 3] = 1
+    return out
+
+
+def apply_transform(transform: Array, points: Array) -> Array:
+    """Apply 4x4 transforms to points. transform: (..., 4, 4); points: (..., 3) -> (..., 3).
+
+    Written as explicit sums of products (no batched matmul) so results do not depend on the BLAS
+    library or thread count: the synthetic engine promises bit-identical output for the same seed.
+    """
+    r, t = transform[..., :3, :3], transform[..., :3, 3]
+    x, y, z = points[..., 0:1], points[..., 1:2], points[..., 2:3]
+    return r[..., :, 0] * x + r[..., :, 1] * y + r[..., :, 2] * z + t
+
+
+def apply_rotation(transform: Array, vectors: Array) -> Array:
+    """Apply only the rotation part of (..., 4, 4) or (..., 3, 3) transforms to (..., 3) vectors."""
+    r = transform[..., :3, :3]
+    x, y, z = vectors[..., 0:1], vectors[..., 1:2], vectors[..., 2:3]
+    return r[..., :, 0] * x + r[..., :, 1] * y + r[..., :, 2] * z
+
+
+def rotation_about_axis(axis: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
+    """Rodrigues' formula. axis: (3,) (normalised inside); angle: scalar or (...,) radians -> (..., 3, 3)."""
+    axis = np.asarray(axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    angle = np.asarray(angle, dtype=np.float64)
+    kx, ky, kz = axis
+    k = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
+    s = np.sin(angle)[..., None, None]
+    c = np.cos(angle)[..., None, None]
+    return np.eye(3) + s * k + (1.0 - c) * (k @ k)
+
+
+def rigid(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """Assemble (..., 4, 4) transforms from rotations (..., 3, 3) and translations (..., 3)."""
+    rotation = np.asarray(rotation, dtype=np.float64)
+    translation = np.asarray(translation, dtype=np.float64)
+    shape = np.broadcast_shapes(rotation.shape[:-2], translation.shape[:-1])
+    out = np.zeros(shape + (4, 4))
+    out[..., :3, :3] = rotation
+    out[..., :3, 3] = translation
+    out[..., 3, 3] = 1.0
+    return out

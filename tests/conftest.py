@@ -1,0 +1,49 @@
+import numpy as np
+import pytest
+import torch
+
+from d4rt.synthetic import render_clip
+
+
+@pytest.fixture(scope="session")
+def room_clip():
+    """A room with several moving objects, a moving camera and an articulated arm."""
+    return render_clip(3, 8, 48, 64, environment="room", num_objects=6, camera_motion="orbit", articulated=True,
+                       moving_fraction=0.8)
+
+
+@pytest.fixture(scope="session")
+def outdoor_clip():
+    """Outdoors, hand-held camera with shake and a zoom, non-square frames."""
+    return render_clip(11, 8, 40, 72, environment="outdoor", num_objects=5, camera_motion="handheld", shake=True,
+                       zoom=True, moving_fraction=0.8)
+
+
+@pytest.fixture(scope="session", params=["room", "outdoor"])
+def clip(request, room_clip, outdoor_clip):
+    return room_clip if request.param == "room" else outdoor_clip
+
+
+def pixel_centre_queries(clip, frames, t_tgt=None, t_cam=None, dtype=np.float64):
+    """Queries at every pixel centre of the given source frames (t_tgt = t_cam = t_src by default)."""
+    t, h, w = clip.num_frames, clip.height, clip.width
+    ys, xs = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    out = []
+    for f in frames:
+        u = (xs.ravel() + 0.5) / w
+        v = (ys.ravel() + 0.5) / h
+        src = np.full(u.shape, f)
+        out.append(np.stack([u, v, src, src if t_tgt is None else np.full(u.shape, t_tgt),
+                             src if t_cam is None else np.full(u.shape, t_cam)], 1))
+    return np.concatenate(out).astype(dtype)
+
+
+def random_queries(rng, clip, n, dtype=np.float64):
+    t = clip.num_frames
+    return np.stack([rng.uniform(0, 1, n), rng.uniform(0, 1, n), rng.integers(0, t, n), rng.integers(0, t, n),
+                     rng.integers(0, t, n)], 1).astype(dtype)
+
+
+@pytest.fixture(autouse=True)
+def _deterministic_torch():
+    torch.manual_seed(0)
