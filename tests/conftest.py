@@ -1,8 +1,14 @@
+import os
+
 import numpy as np
 import pytest
 import torch
 
 from d4rt.synthetic import render_clip
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # One torch thread per xdist worker: more threads than cores makes OpenMP spin and crawl.
+    torch.set_num_threads(1)
 
 
 @pytest.fixture(scope="session")

@@ -128,13 +128,14 @@ def random_material(rng, role: str, extent: float = 1.0, depth: int = 0) -> Mate
 
 
 def _sky_material(rng, radius: float) -> Material:
+    """Emissive sky: a horizon-to-zenith gradient with soft clouds (a low-frequency noise mixture)."""
     horizon, zenith = _color(rng, (0.05, 0.3), (0.75, 1.0)), _color(rng, (0.3, 0.8), (0.5, 0.95))
+    clouds = Material(pattern="noise", colors=[zenith, [1.0, 1.0, 1.0]], frequency=1.5 / radius,
+                      noise_seed=int(rng.integers(0, 2**31 - 1)), grain=0.0, emissive=True)
     return Material(pattern="gradient", colors=[horizon, horizon, zenith], direction=[0.0, 0.0, 1.0],
                     extent=radius * 0.5, offset=[0.0, 0.0, -radius * 0.5], emissive=True,
-                    noise_seed=int(rng.integers(0, 2**31 - 1)), noise_frequency=3.0 / radius,
-                    grain=float(rng.uniform(0.05, 0.2)),
-                    secondary=Material(pattern="noise", colors=[[1.0, 1.0, 1.0], zenith], frequency=4.0 / radius,
-                                       noise_seed=int(rng.integers(0, 2**31 - 1)), grain=0.0, emissive=True))
+                    noise_seed=int(rng.integers(0, 2**31 - 1)), noise_frequency=0.8 / radius, grain=0.0,
+                    secondary=clouds)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -298,6 +299,7 @@ class _Placement:
 
     def __init__(self, room_half: np.ndarray | None, height: float, cam_centres: np.ndarray, taus: np.ndarray):
         self.room_half, self.height, self.cam, self.taus = room_half, height, cam_centres, taus
+        self.room = None if room_half is None else (room_half[:2], height)
         self.accepted: list[tuple[np.ndarray, float]] = []  # (centres over taus, radius)
 
     def ok(self, centres: np.ndarray, radius: float, resting: bool) -> bool:
@@ -316,13 +318,26 @@ class _Placement:
         self.accepted.append((centres, radius))
 
 
-def _point_in_view(rng, cam_pose: np.ndarray, focal: float, height: int, width: int, depth_range) -> np.ndarray:
-    """A random world point that the camera sees, at a random depth."""
+def _point_in_view(rng, cam_pose: np.ndarray, focal: float, height: int, width: int, depth_range,
+                   room: tuple[np.ndarray, float] | None = None) -> np.ndarray:
+    """A random world point that the camera sees, at a random depth (inside the room, if any)."""
     x = rng.uniform(0.1, 0.9) * width - 0.5
     y = rng.uniform(0.15, 0.9) * height - 0.5
-    z = rng.uniform(*depth_range)
-    p_cam = np.array([(x - (width - 1) / 2) / focal * z, (y - (height - 1) / 2) / focal * z, z])
-    return cam_pose[:3, :3] @ p_cam + cam_pose[:3, 3]
+    ray = np.array([(x - (width - 1) / 2) / focal, (y - (height - 1) / 2) / focal, 1.0])
+    lo, hi = depth_range
+    if room is not None:
+        hi = min(hi, 0.85 * _exit_depth(cam_pose, ray, *room))
+    z = rng.uniform(lo, max(lo, hi))
+    return cam_pose[:3, :3] @ (ray * z) + cam_pose[:3, 3]
+
+
+def _exit_depth(cam_pose: np.ndarray, ray_cam: np.ndarray, half_xy: np.ndarray, ceiling: float) -> float:
+    """Depth (camera z) at which a camera ray leaves the room box [-hx, hx] x [-hy, hy] x [0, ceiling]."""
+    o, d = cam_pose[:3, 3], cam_pose[:3, :3] @ ray_cam
+    lo, hi = np.array([-half_xy[0], -half_xy[1], 0.0]), np.array([half_xy[0], half_xy[1], ceiling])
+    with np.errstate(divide="ignore"):
+        t = np.where(d > 0, (hi - o) / d, np.where(d < 0, (lo - o) / d, np.inf))
+    return float(max(t.min(), 0.0))
 
 
 def _sample_object_motion(rng, shape_info, placement: _Placement, camera: _CameraPath, focal: float,
@@ -336,7 +351,8 @@ def _sample_object_motion(rng, shape_info, placement: _Placement, camera: _Camer
         crossing = moving and rng.uniform() < 0.35  # enters or leaves the view during the clip
         tau_ref = rng.uniform(0, duration) if crossing else 0.0
         cam_ref = camera.pose(tau_ref)
-        p = _point_in_view(rng, cam_ref, focal * camera.focal_scale(tau_ref), height, width, (1.2, max_depth))
+        p = _point_in_view(rng, cam_ref, focal * camera.focal_scale(tau_ref), height, width, (1.2, max_depth),
+                           placement.room)
         resting = rng.uniform() < 0.5
         if resting:
             rot0 = rotation_about_axis([0, 0, 1], rng.uniform(0, 2 * math.pi))
@@ -372,50 +388,50 @@ def _sample_object_motion(rng, shape_info, placement: _Placement, camera: _Camer
     return None
 
 
-def _arm(rng, placement: _Placement, camera: _CameraPath, focal, height, width, duration, max_depth):
-    """An articulated arm: base cylinder, two box links on hinge joints. Returns [(Body, pose_fn)]."""
+def _arm(rng, placement: _Placement, camera: _CameraPath, focal, height, width, max_depth):
+    """An articulated arm: a base cylinder and two box links on hinge joints, each part a rigid body
+    with its own id. Returns [(Body, pose function, kind)], or [] if it does not fit in the scene."""
     base_r, base_h = rng.uniform(0.12, 0.2), rng.uniform(0.15, 0.35)
     l1, l2 = rng.uniform(0.22, 0.4), rng.uniform(0.18, 0.32)
     w1, w2 = rng.uniform(0.05, 0.08), rng.uniform(0.04, 0.06)
-    reach = base_h * 2 + 2 * l1 + 2 * l2
-    for _ in range(30):
-        cam0 = camera.pose(0.0)
-        p = _point_in_view(rng, cam0, focal * camera.focal_scale(0.0), height, width, (2.0, max_depth))
-        p[2] = base_h
-        yaw_rate = math.radians(rng.uniform(-40, 40)) if rng.uniform() < 0.6 else 0.0
-        base = _Motion(p, rotation_about_axis([0, 0, 1], rng.uniform(0, 2 * math.pi)), 0.0, None,
-                       np.array([0.0, 0.0, 1.0]), yaw_rate)
-        centres = base.position(placement.taus)
-        if placement.ok(centres, reach, resting=True):
-            placement.accept(centres, reach)
-            break
-    else:
-        return []
-    j1 = (rng.uniform(-0.6, 0.6), math.radians(rng.uniform(20, 60)), rng.uniform(0.3, 1.0), rng.uniform(0, 6.3))
-    j2 = (rng.uniform(-1.0, 1.0), math.radians(rng.uniform(20, 70)), rng.uniform(0.3, 1.2), rng.uniform(0, 6.3))
+    joint1 = (rng.uniform(-0.6, 0.6), math.radians(rng.uniform(20, 60)), rng.uniform(0.3, 1.0), rng.uniform(0, 6.3))
+    joint2 = (rng.uniform(-1.0, 1.0), math.radians(rng.uniform(20, 70)), rng.uniform(0.3, 1.2), rng.uniform(0, 6.3))
 
     def angle(j, tau):
         return j[0] + j[1] * math.sin(2 * math.pi * j[2] * tau + j[3])
 
-    def hinge(length, theta):
-        # Rotate about the local x axis at the joint, then move to the link's centre.
-        return rigid(rotation_about_axis([1, 0, 0], theta), [0, 0, 0]) @ rigid(np.eye(3), [0, 0, length])
+    def hinge(offset, length, theta):
+        # From the parent's frame: up to the joint, rotate about the local x axis, out to the link's centre.
+        return rigid(np.eye(3), [0, 0, offset]) @ rigid(rotation_about_axis([1, 0, 0], theta), [0, 0, 0]) \
+            @ rigid(np.eye(3), [0, 0, length])
 
-    def pose_base(tau):
-        return base.pose(tau)
-
-    def pose_link1(tau):
-        return pose_base(tau) @ rigid(np.eye(3), [0, 0, base_h]) @ hinge(l1, angle(j1, tau))
-
-    def pose_link2(tau):
-        return pose_link1(tau) @ rigid(np.eye(3), [0, 0, l1]) @ hinge(l2, angle(j2, tau))
-
-    return [
-        (Body("cylinder", [base_r, base_r, base_h], [random_material(rng, "object", base_h)], name="arm_base"),
-         pose_base, "arm_base"),
-        (Body("box", [w1, w1, l1], [random_material(rng, "object", l1)], name="arm_link1"), pose_link1, "arm_link1"),
-        (Body("box", [w2, w2, l2], [random_material(rng, "object", l2)], name="arm_link2"), pose_link2, "arm_link2"),
+    parts = [
+        Body("cylinder", [base_r, base_r, base_h], [random_material(rng, "object", base_h)], name="arm_base"),
+        Body("box", [w1, w1, l1], [random_material(rng, "object", l1)], name="arm_link1"),
+        Body("box", [w2, w2, l2], [random_material(rng, "object", l2)], name="arm_link2"),
     ]
+    for _ in range(30):
+        cam0 = camera.pose(0.0)
+        p = _point_in_view(rng, cam0, focal * camera.focal_scale(0.0), height, width, (2.0, max_depth),
+                           placement.room)
+        p[2] = base_h
+        yaw_rate = math.radians(rng.uniform(-40, 40)) if rng.uniform() < 0.6 else 0.0
+        base = _Motion(p, rotation_about_axis([0, 0, 1], rng.uniform(0, 2 * math.pi)), 0.0, None,
+                       np.array([0.0, 0.0, 1.0]), yaw_rate)
+
+        def pose_link1(tau, base=base):
+            return base.pose(tau) @ hinge(base_h, l1, angle(joint1, tau))
+
+        def pose_link2(tau, pose_link1=pose_link1):
+            return pose_link1(tau) @ hinge(l1, l2, angle(joint2, tau))
+
+        fns = [base.pose, pose_link1, pose_link2]
+        centres = [np.array([fn(t)[:3, 3] for t in placement.taus]) for fn in fns]
+        if all(placement.ok(c, part.bounding_radius, resting=False) for c, part in zip(centres, parts)):
+            for c, part in zip(centres, parts):
+                placement.accept(c, part.bounding_radius)
+            return list(zip(parts, fns, ["arm_base", "arm_link1", "arm_link2"]))
+    return []
 
 
 # --------------------------------------------------------------------------------------------------
@@ -443,7 +459,7 @@ def sample_scene(seed: int, frames: int, height: int, width: int, options: Scene
 
     # Environment and camera path (retried with gentler motion until the camera stays inside).
     if env_kind == "room":
-        room_half = np.array([rng.uniform(3.0, 6.0), rng.uniform(3.0, 6.0)])
+        room_half = np.array([rng.uniform(2.5, 5.0), rng.uniform(2.5, 5.0)])
         ceiling = rng.uniform(2.6, 4.0)
         env = Body("room", [room_half[0], room_half[1], ceiling / 2],
                    [random_material(rng, "wall", 3.0), random_material(rng, "wall", 3.0),
@@ -490,7 +506,7 @@ def sample_scene(seed: int, frames: int, height: int, width: int, options: Scene
     with_arm = bool(rng.uniform() < 0.4) if options.articulated is None else options.articulated
     bodies, pose_fns, kinds = [env], [lambda tau: env_pose], ["environment"]
     if with_arm:
-        for body, fn, kind in _arm(rng, placement, camera, focal, height, width, duration, max_depth):
+        for body, fn, kind in _arm(rng, placement, camera, focal, height, width, max_depth):
             body.parent = None if kind == "arm_base" else len(bodies) - 1
             bodies.append(body)
             pose_fns.append(fn)

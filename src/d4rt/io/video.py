@@ -1,0 +1,34 @@
+"""Video files through PyAV (FFmpeg)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import av
+import numpy as np
+
+from d4rt.errors import UserError
+
+
+def write_video(path: str | Path, frames: np.ndarray, fps: float = 12.0) -> Path:
+    """Write (T, H, W, 3) uint8 RGB frames as an H.264 mp4 (odd sizes are padded by one pixel)."""
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
+        raise UserError(f"video frames must be (T, H, W, 3) uint8, got {frames.shape} {frames.dtype}")
+    # yuv420p needs even sizes: pad by edge replication rather than resample.
+    pad_h, pad_w = frames.shape[1] % 2, frames.shape[2] % 2
+    if pad_h or pad_w:
+        frames = np.pad(frames, ((0, 0), (0, pad_h), (0, pad_w), (0, 0)), mode="edge")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with av.open(str(path), mode="w") as container:
+        stream = container.add_stream("libx264", rate=int(round(fps)))
+        stream.width, stream.height = frames.shape[2], frames.shape[1]
+        stream.pix_fmt = "yuv420p"
+        stream.options = {"crf": "18"}
+        for frame in frames:
+            for packet in stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    return path

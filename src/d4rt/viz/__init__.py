@@ -1,0 +1,1 @@
+"""Visualisation: colour maps for geometry buffers and preview images."""

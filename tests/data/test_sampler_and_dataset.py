@@ -1,0 +1,149 @@
+"""The paper's query sampler and augmentations: statistics, exactness through views, datasets."""
+
+import numpy as np
+import pytest
+import torch
+
+from d4rt.data import (AugmentConfig, ClipQueryDataset, DatasetConfig, QuerySampler, QuerySamplerConfig,
+                       boundary_mask, make_training_sample, photometric_augment, sample_view)
+from d4rt.data.sampler import scene_flow
+from d4rt.errors import UserError
+from d4rt.geometry.camera import project
+from d4rt.geometry.view import View
+from d4rt.synthetic import Clip
+
+
+def test_scene_flow_is_zero_on_static_bodies_and_exact_on_moving_ones(room_clip):
+    flow = scene_flow(room_clip).numpy()
+    kinds = room_clip.scene.info["body_motion"]
+    static = np.isin(room_clip.object_ids, [k for k, kind in enumerate(kinds) if kind in ("environment", "static")])
+    assert np.abs(flow[static]).max() < 1e-9
+    # Exact: the oracle's world-frame displacement from frame 2 to 3 of the same pixels.
+    ys, xs = np.nonzero(~static[2])
+    q = np.stack([(xs + 0.5) / 64, (ys + 0.5) / 48, np.full(len(xs), 2), np.full(len(xs), 3), np.zeros(len(xs))], 1)
+    moved = room_clip.oracle.query(q)["motion"].numpy()  # in camera 0
+    world = moved @ room_clip.cam_to_world[0, :3, :3].T
+    assert np.abs(world - flow[2, ys, xs]).max() < 1e-5
+
+
+def test_boundary_mask_marks_depth_and_motion_edges_only(room_clip):
+    mask = boundary_mask(room_clip, QuerySamplerConfig(boundary_radius=0)).numpy()
+    ids = room_clip.object_ids.astype(int)
+    id_edge = np.zeros_like(mask)
+    id_edge[:, :, 1:] |= ids[:, :, 1:] != ids[:, :, :-1]
+    id_edge[:, :, :-1] |= ids[:, :, 1:] != ids[:, :, :-1]
+    id_edge[:, 1:] |= ids[:, 1:] != ids[:, :-1]
+    id_edge[:, :-1] |= ids[:, 1:] != ids[:, :-1]
+    # Most object-boundary pixels are depth or motion edges, and the band is a small part of the frame.
+    assert mask[id_edge].mean() > 0.6
+    assert 0.02 < mask.mean() < 0.5
+    wide = boundary_mask(room_clip, QuerySamplerConfig(boundary_radius=2)).numpy()
+    assert wide.mean() > mask.mean() and (wide | ~mask).all()  # dilation contains the thin mask
+
+
+def test_sampler_statistics_match_the_paper(room_clip):
+    cfg = QuerySamplerConfig(num_queries=20000)
+    sampler = QuerySampler(cfg)
+    band = boundary_mask(room_clip, cfg).numpy()
+    out = sampler.sample(room_clip, np.random.default_rng(0))
+    q = out["queries"]
+    t = room_clip.num_frames
+    # 30% drawn from the boundary band (exactly, as a count), the rest uniform over the frame.
+    assert abs(out["from_boundary"].mean() - 0.3) < 1e-3
+    col = np.floor(q[:, 0] * room_clip.width).astype(int)
+    row = np.floor(q[:, 1] * room_clip.height).astype(int)
+    in_band = band[q[:, 2].astype(int), row, col]
+    assert in_band[out["from_boundary"]].all()
+    expected = 0.3 + 0.7 * band.mean()  # uniform draws land in the band at its area fraction
+    assert abs(in_band.mean() - expected) < 0.02, (in_band.mean(), expected)
+    # t_tgt = t_cam forced with probability 0.4; otherwise the three times are independent uniforms.
+    forced = out["forced_tgt_equals_cam"]
+    assert abs(forced.mean() - 0.4) < 0.015
+    equal = q[:, 3] == q[:, 4]
+    assert abs(equal.mean() - (0.4 + 0.6 / t)) < 0.015
+    for col_i in (2, 3, 4):
+        counts = np.bincount(q[:, col_i].astype(int), minlength=t) / len(q)
+        assert np.abs(counts - 1 / t).max() < 0.012
+
+
+def test_training_sample_targets_are_exact_through_crop_zoom_and_stride(room_clip):
+    rng = np.random.default_rng(1)
+    sampler = QuerySampler(QuerySamplerConfig(num_queries=500))
+    for zoom in (0.0, 1.0):
+        aug = AugmentConfig(zoom_prob=zoom, max_stride=2)
+        view = sample_view(rng, room_clip.num_frames, (48, 64), 4, (32, 32), aug)
+        sample = make_training_sample(room_clip, view, rng, sampler, aug)
+        child = room_clip.view(view)  # the same view as a clip: its oracle must give the same targets
+        q = sample["queries"].double().numpy()
+        ref = child.oracle.query(q)
+        assert torch.allclose(sample["points"], ref["points"].float(), atol=1e-5)
+        assert torch.allclose(sample["visibility"], ref["visibility"].float())
+        ok = ref["uv_valid"]
+        assert torch.allclose(sample["uv"][ok], ref["uv"][ok].float(), atol=1e-5)
+        # Targets at t_tgt = t_cam project through the sample's intrinsics onto the sample's uv.
+        same = (q[:, 3] == q[:, 4]) & ok.numpy()
+        k = sample["intrinsics"].double().numpy()[q[same, 3].astype(int)]
+        xy, _ = project(sample["points"].double().numpy()[same], k)
+        uv = np.stack([(xy[:, 0] + 0.5) / 32, (xy[:, 1] + 0.5) / 32], 1)
+        assert np.abs(uv - sample["uv"].double().numpy()[same]).max() < 1e-4
+        assert sample["video"].shape == (4, 32, 32, 3) and 0 <= sample["video"].min() <= sample["video"].max() <= 1
+        x0, y0, w, h = view.crop
+        assert sample["aspect_ratio"].item() == pytest.approx(w / h)
+
+
+def test_sample_view_ranges():
+    rng = np.random.default_rng(2)
+    cfg = AugmentConfig()
+    areas, aspects, strides = [], [], []
+    for _ in range(2000):
+        v = sample_view(rng, 48, (90, 160), 16, (64, 64), cfg)
+        x0, y0, w, h = v.crop
+        areas.append(w * h / (90 * 160))
+        aspects.append(w / h)
+        strides.append(v.frames[1] - v.frames[0])
+        assert v.frames[-1] < 48 and x0 + w <= 160 and y0 + h <= 90
+    areas = np.array(areas)
+    assert areas.min() >= 0.03 and areas.max() <= 1.0
+    assert 0.9 < np.mean((areas > 0.29) & (areas < 1.01)) < 0.99  # crops; the rest are zoom-ins (p 0.05)
+    assert set(strides) == {1, 2, 3}
+    assert min(aspects) < 0.6 and max(aspects) > 1.8
+
+
+def test_photometric_augment_is_consistent_over_time_and_bounded():
+    rng = np.random.default_rng(3)
+    frame = torch.rand(1, 16, 16, 3)
+    video = frame.repeat(4, 1, 1, 1)
+    cfg = AugmentConfig(jitter_prob=1.0, color_drop_prob=0.0, blur_prob=1.0)
+    out = photometric_augment(video, rng, cfg)
+    assert out.shape == video.shape and 0 <= out.min() and out.max() <= 1
+    assert torch.allclose(out[0], out[3])  # identical frames stay identical: one draw per clip
+    assert not torch.allclose(out, video)
+    gray = photometric_augment(video, rng, AugmentConfig(jitter_prob=0.0, color_drop_prob=1.0, blur_prob=0.0))
+    assert torch.allclose(gray[..., 0], gray[..., 1]) and torch.allclose(gray[..., 1], gray[..., 2])
+
+
+def test_datasets_render_on_the_fly_or_read_files_deterministically(tmp_path, room_clip):
+    cfg = DatasetConfig(num_clips=3, frames=4, size=(32, 32), render_pixels=40 * 40,
+                        sampler=QuerySamplerConfig(num_queries=64))
+    ds = ClipQueryDataset(cfg)
+    a, b = ds[1], ds[1]
+    for key in a:
+        assert torch.equal(a[key], b[key]), key
+    assert a["video"].shape == (4, 32, 32, 3) and a["queries"].shape == (64, 5) and a["points"].shape == (64, 3)
+    assert torch.isfinite(a["points"]).all()
+    ds.set_epoch(1)
+    assert not torch.equal(ds[1]["queries"], a["queries"])
+    batch = next(iter(torch.utils.data.DataLoader(ds, batch_size=2)))
+    assert batch["video"].shape == (2, 4, 32, 32, 3)
+    # From files, including clips without a scene description (bring-your-own-data layout).
+    room_clip.save(tmp_path / "a.npz")
+    Clip(room_clip.rgb, room_clip.depth, room_clip.normals, room_clip.object_ids, room_clip.intrinsics,
+         room_clip.cam_to_world, room_clip.object_to_world).save(tmp_path / "b.npz")
+    files = ClipQueryDataset(DatasetConfig(source="files", directory=str(tmp_path), frames=4, size=(32, 32),
+                                           sampler=QuerySamplerConfig(num_queries=64)))
+    assert len(files) == 2
+    for i in range(2):
+        s = files[i]
+        assert s["queries"].shape == (64, 5) and s["valid"].any()
+    with pytest.raises(UserError, match="no .npz clips"):
+        ClipQueryDataset(DatasetConfig(source="files", directory=str(tmp_path / "empty")))
