@@ -100,7 +100,7 @@ def check_queries(queries: Any, num_frames: int, batched: bool = False) -> torch
     if queries.numel() == 0:
         return queries
     if not bool(torch.isfinite(queries).all()):
-        where = _first(~torch.isfinite(queries).any(-1))
+        where = _first((~torch.isfinite(queries)).any(-1))
         raise UserError(f"query {_fmt(where)} contains NaN or infinite values")
     uv = queries[..., :2]
     bad_uv = ((uv < 0) | (uv > 1)).any(-1)
