@@ -68,7 +68,8 @@ class CrossAttention(nn.Module):
         """``context: (B, M, context_dim)`` -> keys, values, each ``(B, heads, M, dim / heads)``."""
         bias = torch.cat([torch.zeros_like(self.v_bias), self.v_bias])
         k, v = F.linear(context, self.kv.weight, bias).chunk(2, dim=-1)
-        return split_heads(k, self.heads), split_heads(v, self.heads)
+        # Contiguous per head: attention kernels then read them without a copy on every reuse.
+        return split_heads(k, self.heads).contiguous(), split_heads(v, self.heads).contiguous()
 
     def forward(self, x: torch.Tensor, keys: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
         """``x: (B, N, dim)``, keys/values from :meth:`project_context` (batch 1 broadcasts) -> ``(B, N, dim)``."""
