@@ -164,3 +164,11 @@ def test_numpy_queries_of_float64_are_accepted(tiny_model, random_video):
     scene = tiny_model.encode(random_video(2, 8, 8))
     out = scene.query(np.array([[0.25, 0.75, 1, 0, 1]], dtype=np.float64))
     assert out["uv"].shape == (1, 2)
+
+
+def test_encoder_input_is_the_antialiased_bilinear_resize(tiny_model, random_video):
+    video = random_video(10, 90, 160)  # more frames than one resize step, to cover the stitching
+    scene = tiny_model.encode(video)
+    expected = torch.nn.functional.interpolate(video.permute(0, 3, 1, 2).float() / 255, size=(64, 64),
+                                               mode="bilinear", antialias=True).permute(0, 2, 3, 1)
+    torch.testing.assert_close(scene.patch_video[0], expected, atol=1e-6, rtol=0)

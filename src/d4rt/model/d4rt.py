@@ -25,9 +25,8 @@ from d4rt.model.inputs import (
     check_aspect_ratio,
     check_queries,
     check_video,
+    encoder_frames,
     pad_to_tubelets,
-    resize_frames,
-    to_unit_float,
 )
 from d4rt.model.query_embedding import QueryEmbedding
 from d4rt.model.scene import EncodedScene
@@ -151,7 +150,7 @@ class D4RT(nn.Module):
         frames, height, width, _ = video.shape
         device = next(self.parameters()).device
         video = video.to(device)
-        resized = resize_frames(to_unit_float(video), self.config.image_size)[None]
+        resized = encoder_frames(video, self.config.image_size)[None]
         aspect = torch.tensor([width / height], device=device)
         tokens = self.encode_tokens(resized, aspect)
         if self.config.rgb_patch_size == 0:
