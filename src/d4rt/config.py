@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -140,8 +140,16 @@ class D4RTConfig:
         if self.confidence_activation not in CONFIDENCE_ACTIVATIONS:
             raise UserError(
                 f"config confidence_activation must be one of {CONFIDENCE_ACTIVATIONS}, got {self.confidence_activation!r}")
-        if self.fourier_max_frequency is not None and not self.fourier_max_frequency >= 1.0:
+        if self.fourier_max_frequency is not None and not (
+                isinstance(self.fourier_max_frequency, (int, float)) and self.fourier_max_frequency >= 1.0):
             raise UserError(f"config fourier_max_frequency must be >= 1 cycle per image, got {self.fourier_max_frequency!r}")
+        for name in ("layer_norm_eps", "init_std"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not value > 0:
+                raise UserError(f"config field {name} must be a positive number, got {value!r}")
+        for name in ("gradient_checkpointing", "cache_scene_kv"):
+            if not isinstance(getattr(self, name), bool):
+                raise UserError(f"config field {name} must be true or false, got {getattr(self, name)!r}")
         if len(self.pixel_mean) != 3 or len(self.pixel_std) != 3 or min(self.pixel_std) <= 0:
             raise UserError("config pixel_mean and pixel_std must be 3 numbers each, pixel_std positive")
 
