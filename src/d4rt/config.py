@@ -1,0 +1,265 @@
+"""D4RTConfig: every architectural number of the model in one dataclass, plus the named presets.
+
+The paper (Zhang et al., arXiv 2512.08924) fixes some numbers (ViT-g encoder of 40 layers, 2x16x16
+tubelets, 256x256 input, 48 frames, 8-layer decoder of about 144M parameters, 9x9 RGB patch); every
+number it leaves open is a field here with the value we chose and why (see also docs/model.md).
+
+Presets:
+
+=======  =======  ======  ==========  =====================  ==========================
+name     input    frames  tubelet     encoder (w/d/h/mlp)    decoder (w/d/h/mlp)
+=======  =======  ======  ==========  =====================  ==========================
+tiny     64       24      2x8x8       192/6/3/768            192/4/3/768
+small    128      32      2x8x8       256/8/4/1024           256/4/4/1024
+base     256      48      2x16x16     768/12/12/3072 ViT-B   512/6/8/2048
+large    256      48      2x16x16     1024/24/16/4096 ViT-L  768/6/12/3072
+huge     256      48      2x16x16     1280/32/16/5120 ViT-H  1024/6/16/4096
+giant    256      48      2x16x16     1408/40/16/6144 ViT-g  1152/8/18/5184
+=======  =======  ======  ==========  =====================  ==========================
+
+``d4rt info --preset NAME`` prints the parameter counts of each.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from d4rt.errors import UserError
+
+PATCH_SOURCES = ("encoder", "original")
+CONFIDENCE_ACTIVATIONS = ("softplus", "one_plus_exp")
+
+
+@dataclass(frozen=True)
+class D4RTConfig:
+    """Architecture of a D4RT model. Build one with :meth:`preset` (optionally overriding fields).
+
+    Video input
+        image_size: side of the square the video is resized to before the encoder (pixels).
+        max_frames: most frames one clip may have; longer videos must be cut into windows.
+        patch_size: spatial side of one tubelet (pixels at ``image_size``).
+        tubelet_frames: frames per tubelet. A clip whose length is not a multiple of it is padded by
+            repeating its last frame (the padding is never queryable).
+        pixel_mean, pixel_std: per-channel RGB normalisation of [0, 1] pixels. ImageNet statistics,
+            which VideoMAE v2 was pre-trained with, so converted weights see the inputs they expect.
+
+    Encoder (a ViT over all tubelets of the clip)
+        encoder_dim, encoder_depth, encoder_heads, encoder_mlp_dim: the ViT's width, number of blocks,
+            attention heads and MLP hidden width.
+        global_attention_every: block i (0-indexed) attends over the whole clip when
+            ``(i + 1) % global_attention_every == 0`` and within one tubelet time step otherwise.
+            2 alternates frame-local and global blocks as VGGT does (not in paper).
+
+    Query embedding
+        fourier_frequencies: number of Fourier frequencies per axis of (u, v) (not in paper).
+        fourier_max_frequency: highest frequency in cycles per image side; frequencies are
+            log-spaced from 1 to it. None means ``image_size / 2``: the Nyquist frequency of the
+            encoder input, so the finest feature oscillates once per 2 encoder pixels and nothing is
+            numerical noise (not in paper).
+        rgb_patch_size: side of the RGB patch around (u, v) in source pixels (paper: 9; 0 disables).
+        rgb_patch_source: ``"encoder"`` samples the patch from the resized encoder-resolution video
+            (paper default), ``"original"`` from the original frames (sharper edges, App. C).
+
+    Decoder (cross-attention from each query to the scene tokens, then an MLP; no query-query mixing)
+        decoder_dim, decoder_depth, decoder_heads, decoder_mlp_dim: as for the encoder.
+        confidence_activation: ``"softplus"`` (c = softplus(x), any positive value) or
+            ``"one_plus_exp"`` (c = 1 + exp(x), DUSt3R's choice, c >= 1) (not in paper).
+
+    Runtime
+        layer_norm_eps: epsilon of every LayerNorm (1e-6, as VideoMAE v2).
+        init_std: standard deviation of the truncated-normal initialisation of linear layers.
+        gradient_checkpointing: recompute encoder and decoder blocks in the backward pass (training only).
+        query_chunk_size: queries decoded at once by ``EncodedScene.query`` (bounds memory).
+        cache_scene_kv: project the scene tokens to keys/values once per decoder layer and reuse them
+            for every query chunk; False recomputes them per chunk (for benchmarks).
+    """
+
+    name: str = "custom"
+    # video input
+    image_size: int = 64
+    max_frames: int = 24
+    patch_size: int = 8
+    tubelet_frames: int = 2
+    pixel_mean: tuple[float, float, float] = (0.485, 0.456, 0.406)
+    pixel_std: tuple[float, float, float] = (0.229, 0.224, 0.225)
+    # encoder
+    encoder_dim: int = 192
+    encoder_depth: int = 6
+    encoder_heads: int = 3
+    encoder_mlp_dim: int = 768
+    global_attention_every: int = 2
+    # query embedding
+    fourier_frequencies: int = 8
+    fourier_max_frequency: float | None = None
+    rgb_patch_size: int = 9
+    rgb_patch_source: str = "encoder"
+    # decoder
+    decoder_dim: int = 192
+    decoder_depth: int = 4
+    decoder_heads: int = 3
+    decoder_mlp_dim: int = 768
+    confidence_activation: str = "softplus"
+    # runtime
+    layer_norm_eps: float = 1e-6
+    init_std: float = 0.02
+    gradient_checkpointing: bool = False
+    query_chunk_size: int = 4096
+    cache_scene_kv: bool = True
+
+    def __post_init__(self) -> None:
+        # JSON gives lists; keep tuples so configs compare equal after a round trip.
+        object.__setattr__(self, "pixel_mean", tuple(float(x) for x in self.pixel_mean))
+        object.__setattr__(self, "pixel_std", tuple(float(x) for x in self.pixel_std))
+        self.validate()
+
+    # ----------------------------------------------------------------------------------------- checks
+    def validate(self) -> None:
+        """Raise :class:`UserError` naming the first inconsistent field."""
+        positive = ["image_size", "max_frames", "patch_size", "tubelet_frames", "encoder_dim",
+                    "encoder_depth", "encoder_heads", "encoder_mlp_dim", "global_attention_every",
+                    "fourier_frequencies", "decoder_dim", "decoder_depth", "decoder_heads",
+                    "decoder_mlp_dim", "query_chunk_size"]
+        for name in positive:
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise UserError(f"config field {name} must be a positive integer, got {value!r}")
+        if self.image_size % self.patch_size:
+            raise UserError(f"config image_size {self.image_size} is not a multiple of patch_size {self.patch_size}")
+        for part in ("encoder", "decoder"):
+            dim, heads = getattr(self, f"{part}_dim"), getattr(self, f"{part}_heads")
+            if dim % heads:
+                raise UserError(f"config {part}_dim {dim} is not divisible by {part}_heads {heads}")
+        if not isinstance(self.rgb_patch_size, int) or self.rgb_patch_size < 0:
+            raise UserError(f"config rgb_patch_size must be an integer >= 0, got {self.rgb_patch_size!r}")
+        if self.rgb_patch_source not in PATCH_SOURCES:
+            raise UserError(f"config rgb_patch_source must be one of {PATCH_SOURCES}, got {self.rgb_patch_source!r}")
+        if self.confidence_activation not in CONFIDENCE_ACTIVATIONS:
+            raise UserError(
+                f"config confidence_activation must be one of {CONFIDENCE_ACTIVATIONS}, got {self.confidence_activation!r}")
+        if self.fourier_max_frequency is not None and not (
+                isinstance(self.fourier_max_frequency, (int, float)) and self.fourier_max_frequency >= 1.0):
+            raise UserError(f"config fourier_max_frequency must be >= 1 cycle per image, got {self.fourier_max_frequency!r}")
+        for name in ("layer_norm_eps", "init_std"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not value > 0:
+                raise UserError(f"config field {name} must be a positive number, got {value!r}")
+        for name in ("gradient_checkpointing", "cache_scene_kv"):
+            if not isinstance(getattr(self, name), bool):
+                raise UserError(f"config field {name} must be true or false, got {getattr(self, name)!r}")
+        if len(self.pixel_mean) != 3 or len(self.pixel_std) != 3 or min(self.pixel_std) <= 0:
+            raise UserError("config pixel_mean and pixel_std must be 3 numbers each, pixel_std positive")
+
+    # ------------------------------------------------------------------------------------ derived sizes
+    @property
+    def grid_size(self) -> int:
+        """Tubelets per side of the encoder input: ``image_size // patch_size``."""
+        return self.image_size // self.patch_size
+
+    @property
+    def max_time_steps(self) -> int:
+        """Tubelet time steps of the longest clip: ``ceil(max_frames / tubelet_frames)``."""
+        return -(-self.max_frames // self.tubelet_frames)
+
+    @property
+    def fourier_max(self) -> float:
+        """The highest Fourier frequency actually used, in cycles per image side."""
+        return float(self.fourier_max_frequency) if self.fourier_max_frequency is not None else self.image_size / 2
+
+    def num_scene_tokens(self, num_frames: int) -> int:
+        """Scene tokens for a clip of ``num_frames`` frames at full resolution (+1 aspect-ratio token)."""
+        steps = -(-num_frames // self.tubelet_frames)
+        return steps * self.grid_size**2 + 1
+
+    # ---------------------------------------------------------------------------------------- presets
+    @classmethod
+    def preset_names(cls) -> list[str]:
+        return list(_PRESETS)
+
+    @classmethod
+    def preset(cls, name: str, **overrides: Any) -> "D4RTConfig":
+        """The named preset (tiny, small, base, large, huge, giant), with any field overridden."""
+        if name not in _PRESETS:
+            raise UserError(f"unknown preset {name!r}; choose one of {', '.join(_PRESETS)}")
+        return dataclasses.replace(_PRESETS[name], **_checked_fields(overrides))
+
+    def replace(self, **overrides: Any) -> "D4RTConfig":
+        """A copy with the given fields changed."""
+        return dataclasses.replace(self, **_checked_fields(overrides))
+
+    # ----------------------------------------------------------------------------------------- JSON
+    def to_dict(self) -> dict[str, Any]:
+        data = dataclasses.asdict(self)
+        data["pixel_mean"] = list(self.pixel_mean)
+        data["pixel_std"] = list(self.pixel_std)
+        return data
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "D4RTConfig":
+        if not isinstance(data, dict):
+            raise UserError(f"a D4RT config must be a JSON object, got {type(data).__name__}")
+        return cls(**_checked_fields(data))
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True) + "\n"
+
+    @classmethod
+    def from_json(cls, text: str) -> "D4RTConfig":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise UserError(f"config is not valid JSON: {err}") from None
+        return cls.from_dict(data)
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(self.to_json())
+
+    @classmethod
+    def load(cls, path: str | Path) -> "D4RTConfig":
+        path = Path(path)
+        if not path.is_file():
+            raise UserError(f"config file not found: {path}")
+        return cls.from_json(path.read_text())
+
+
+def _checked_fields(values: dict[str, Any]) -> dict[str, Any]:
+    known = {f.name for f in dataclasses.fields(D4RTConfig)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise UserError(f"unknown D4RT config field(s): {', '.join(unknown)}")
+    return dict(values)
+
+
+def _paper_size(name: str, dim: int, depth: int, heads: int, mlp: int,
+                dec_dim: int, dec_depth: int, dec_heads: int, dec_mlp: int, freqs: int = 16) -> D4RTConfig:
+    """A paper-scale preset: 256x256 input, 48 frames, 2x16x16 tubelets (the paper's numbers)."""
+    return D4RTConfig(
+        name=name, image_size=256, max_frames=48, patch_size=16, tubelet_frames=2,
+        encoder_dim=dim, encoder_depth=depth, encoder_heads=heads, encoder_mlp_dim=mlp,
+        fourier_frequencies=freqs,
+        decoder_dim=dec_dim, decoder_depth=dec_depth, decoder_heads=dec_heads, decoder_mlp_dim=dec_mlp,
+        query_chunk_size=2048,
+    )
+
+
+_PRESETS: dict[str, D4RTConfig] = {
+    # CPU-trainable sizes: small input, 8-pixel tubelets so the token grid is still 8x8 / 16x16.
+    "tiny": D4RTConfig(name="tiny"),
+    "small": D4RTConfig(
+        name="small", image_size=128, max_frames=32, patch_size=8, tubelet_frames=2,
+        encoder_dim=256, encoder_depth=8, encoder_heads=4, encoder_mlp_dim=1024,
+        fourier_frequencies=10,
+        decoder_dim=256, decoder_depth=4, decoder_heads=4, decoder_mlp_dim=1024,
+    ),
+    # Paper sizes: encoders are the standard ViT-B/L/H/g (as in VideoMAE v2). The paper's ablations use
+    # a 6-layer decoder; its width is not given, so it grows with the encoder.
+    "base": _paper_size("base", 768, 12, 12, 3072, 512, 6, 8, 2048),
+    "large": _paper_size("large", 1024, 24, 16, 4096, 768, 6, 12, 3072),
+    "huge": _paper_size("huge", 1280, 32, 16, 5120, 1024, 6, 16, 4096),
+    # The main model: ViT-g encoder (~1.01B) and an 8-layer decoder. Width 1152 = 18 heads of 64 with
+    # MLP 5184 (4.5x) lands the decoder at ~144M parameters, the paper's figure (docs/model.md).
+    "giant": _paper_size("giant", 1408, 40, 16, 6144, 1152, 8, 18, 5184),
+}

@@ -1,0 +1,207 @@
+"""The D4RT model: video encoder + query embedding + independent cross-attention decoder.
+
+Two ways in:
+
+- Inference: ``scene = model.encode(video)`` then ``scene.query(queries)`` (see :class:`EncodedScene`).
+  ``encode`` takes a video of any size, resizes it to the square encoder input, runs the encoder exactly
+  once and keeps what queries need.
+- Training: ``model(video, queries, aspect_ratio)`` on batches already at encoder resolution, returning
+  ``(B, N, ...)`` tensors including the raw visibility logit.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from d4rt.config import D4RTConfig
+from d4rt.errors import UserError
+from d4rt.model.decoder import QueryDecoder, SceneKV
+from d4rt.model.encoder import VideoEncoder
+from d4rt.model.inputs import (
+    check_aspect_ratio,
+    check_queries,
+    check_video,
+    encoder_frames,
+    pad_to_tubelets,
+)
+from d4rt.model.query_embedding import QueryEmbedding
+from d4rt.model.scene import EncodedScene
+from d4rt.model.weights import bundled_model_dir, check_state_dict, read_checkpoint, save_checkpoint
+
+
+class D4RT(nn.Module):
+    """D4RT (Zhang et al. 2025): ``D4RT(D4RTConfig.preset("tiny"))``.
+
+    Submodules: ``encoder`` (:class:`VideoEncoder`), ``query_embedding`` (:class:`QueryEmbedding`),
+    ``decoder`` (:class:`QueryDecoder`, with its prediction heads).
+    """
+
+    def __init__(self, config: D4RTConfig):
+        super().__init__()
+        if not isinstance(config, D4RTConfig):
+            raise UserError(f"D4RT needs a D4RTConfig, got {type(config).__name__}")
+        self.config = config
+        self.encoder = VideoEncoder(config)
+        self.query_embedding = QueryEmbedding(config)
+        self.decoder = QueryDecoder(config)
+        self.reset_parameters()
+
+    def reset_parameters(self) -> None:
+        """Truncated-normal linear and embedding weights, zero biases, unit LayerNorms.
+        Position tables keep their sine-cosine initialisation."""
+        std = self.config.init_std
+        for module in self.modules():
+            if isinstance(module, (nn.Linear, nn.Embedding)):
+                nn.init.trunc_normal_(module.weight, std=std, a=-2 * std, b=2 * std)
+                if getattr(module, "bias", None) is not None:
+                    nn.init.zeros_(module.bias)
+            elif isinstance(module, nn.LayerNorm):
+                nn.init.ones_(module.weight)
+                nn.init.zeros_(module.bias)
+        for name, param in self.named_parameters():
+            if name.endswith(("q_bias", "v_bias")):
+                nn.init.zeros_(param)
+
+    # ------------------------------------------------------------------------------------ core steps
+    def encode_tokens(self, video: torch.Tensor, aspect_ratio: torch.Tensor) -> torch.Tensor:
+        """``video: (B, T, H, W, 3)`` float in [0, 1] at encoder resolution, ``aspect_ratio: (B,)``
+        -> scene tokens ``(B, M, encoder_dim)``. T is padded to whole tubelets by repeating the last frame."""
+        mean = video.new_tensor(self.config.pixel_mean)
+        std = video.new_tensor(self.config.pixel_std)
+        video = pad_to_tubelets((video - mean) / std, self.config.tubelet_frames)
+        return self.encoder(video, aspect_ratio.to(video.device))
+
+    def decode(self, queries: torch.Tensor, scene_kv: SceneKV, patch_video: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        """Checked ``queries: (B, N, 5)`` + per-layer scene keys/values -> dict of ``(B, N, ...)``."""
+        return self.decoder(self.query_embedding(queries, patch_video), scene_kv)
+
+    # ------------------------------------------------------------------------------------ training
+    def forward(
+        self,
+        video: torch.Tensor,
+        queries: torch.Tensor,
+        aspect_ratio: torch.Tensor,
+        patch_video: torch.Tensor | None = None,
+        check_inputs: bool = True,
+    ) -> dict[str, torch.Tensor]:
+        """Batched training forward.
+
+        Args:
+            video: ``(B, T, H, W, 3)`` float in [0, 1], already resized to the encoder input (H, W
+                multiples of ``patch_size``, at most ``image_size``; normally both equal ``image_size``).
+            queries: ``(B, N, 5)`` = [u, v, t_src, t_tgt, t_cam] as in :meth:`EncodedScene.query`.
+            aspect_ratio: ``(B,)`` width / height of each clip's original frames.
+            patch_video: ``(B, T, h, w, 3)`` frames to cut RGB patches from when
+                ``rgb_patch_source == "original"`` (required then); by default ``video`` itself.
+            check_inputs: validate shapes and ranges (one pass over the inputs; False skips it).
+
+        Returns:
+            dict of ``points (B, N, 3)``, ``uv (B, N, 2)``, ``visibility (B, N)`` (probability),
+            ``visibility_logit (B, N)`` (for BCE-with-logits), ``motion (B, N, 3)``,
+            ``normals (B, N, 3)`` (unit), ``confidence (B, N)`` (positive).
+        """
+        if check_inputs:
+            self._check_batch(video, queries, aspect_ratio, patch_video)
+        if patch_video is None:
+            if self.config.rgb_patch_source == "original" and self.config.rgb_patch_size > 0:
+                raise UserError("config rgb_patch_source='original' needs patch_video (the original frames)")
+            patch_video = video
+        tokens = self.encode_tokens(video, aspect_ratio)
+        return self.decode(queries, self.decoder.project_scene(tokens), patch_video)
+
+    def _check_batch(self, video, queries, aspect_ratio, patch_video) -> None:
+        cfg = self.config
+        video = check_video(video, cfg.max_frames, batched=True)
+        if not video.dtype.is_floating_point:
+            raise UserError(f"training video must be float in [0, 1], got {video.dtype}")
+        b, t, h, w, _ = video.shape
+        if h % cfg.patch_size or w % cfg.patch_size or h > cfg.image_size or w > cfg.image_size:
+            raise UserError(f"training video frames must be multiples of patch_size {cfg.patch_size} and at most "
+                            f"image_size {cfg.image_size}, got {h}x{w}")
+        queries = check_queries(queries, t, batched=True)
+        if queries.shape[0] != b:
+            raise UserError(f"queries batch {queries.shape[0]} does not match video batch {b}")
+        check_aspect_ratio(aspect_ratio, b)
+        if patch_video is not None:
+            patch_video = check_video(patch_video, cfg.max_frames, batched=True)
+            if patch_video.shape[:2] != (b, t):
+                raise UserError(f"patch_video must have the video's batch and frames {(b, t)}, "
+                                f"got {tuple(patch_video.shape[:2])}")
+
+    # ------------------------------------------------------------------------------------ inference
+    @torch.no_grad()
+    def encode(self, video: Any) -> EncodedScene:
+        """Encode one clip once; query it with ``scene.query(queries)``.
+
+        Args:
+            video: ``(T, H, W, 3)`` uint8 (0..255) or float in [0, 1], torch or numpy, any H and W,
+                1 <= T <= ``max_frames``. It is resized (bilinear, antialiased) to the square
+                ``image_size`` input; its original W / H goes to the aspect-ratio token, and the original
+                frames are kept for RGB patches when ``rgb_patch_source == "original"``.
+
+        Returns:
+            :class:`EncodedScene` (no gradients are tracked).
+        """
+        video = check_video(video, self.config.max_frames)
+        frames, height, width, _ = video.shape
+        device = next(self.parameters()).device
+        video = video.to(device)
+        resized = encoder_frames(video, self.config.image_size)[None]
+        aspect = torch.tensor([width / height], device=device)
+        tokens = self.encode_tokens(resized, aspect)
+        if self.config.rgb_patch_size == 0:
+            patch_video = None
+        elif self.config.rgb_patch_source == "original":
+            patch_video = video[None]
+        else:
+            patch_video = resized
+        return EncodedScene(self, tokens, frames, height, width, patch_video)
+
+    # ------------------------------------------------------------------------------------ weights
+    def save_pretrained(self, directory: str | Path) -> Path:
+        """Write ``config.json`` and ``model.safetensors`` into ``directory`` (created if needed)."""
+        return save_checkpoint(self, self.config, directory)
+
+    @classmethod
+    def from_pretrained(cls, directory: str | Path | None = None, device: str | torch.device = "cpu") -> "D4RT":
+        """Load a model saved with :meth:`save_pretrained`; with no directory, the bundled model.
+
+        Raises :class:`UserError` if the directory or its files are missing, or if the weights' keys or
+        shapes do not match the config (naming the mismatched keys). The model is returned in eval mode.
+        """
+        if directory is None:
+            directory = bundled_model_dir()
+            if not (directory / "model.safetensors").is_file():
+                raise UserError("no bundled model ships with this version of d4rt yet; "
+                                "pass a directory written by D4RT.save_pretrained()")
+        config, state_dict = read_checkpoint(directory, device)
+        with torch.device(device):
+            model = cls(config)
+        check_state_dict(model, state_dict, f"checkpoint {directory}")
+        model.load_state_dict(state_dict, strict=True)
+        return model.eval()
+
+    def load_checked_state_dict(self, state_dict: dict[str, torch.Tensor], source: str = "state dict") -> None:
+        """``load_state_dict`` that first names every missing, unexpected or mis-shaped key."""
+        check_state_dict(self, state_dict, source)
+        self.load_state_dict(state_dict, strict=True)
+
+    # ------------------------------------------------------------------------------------ sizes
+    def parameter_counts(self) -> dict[str, int]:
+        """Parameters per part: encoder, query_embedding, decoder_blocks, heads, decoder (the last
+        three together), total. Works on the meta device."""
+        def count(module: nn.Module) -> int:
+            return sum(p.numel() for p in module.parameters())
+        counts = {
+            "encoder": count(self.encoder),
+            "query_embedding": count(self.query_embedding),
+            "decoder_blocks": count(self.decoder.blocks),
+            "heads": count(self.decoder.heads),
+        }
+        counts["decoder"] = counts["query_embedding"] + counts["decoder_blocks"] + counts["heads"]
+        counts["total"] = counts["encoder"] + counts["decoder"]
+        return counts

@@ -1,0 +1,103 @@
+"""The query decoder D: cross-attention (query -> scene tokens) + MLP blocks, then prediction heads.
+
+There is no self-attention between queries (the paper found it hurts badly): every operation is either
+per-query or attention from one query to the fixed scene tokens, so a query's answer never depends on
+which other queries are decoded with it. The scene tokens enter each block only through that block's
+key/value projection, which :meth:`QueryDecoder.project_scene` computes once per clip.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+from torch.utils.checkpoint import checkpoint
+
+from d4rt.config import D4RTConfig
+from d4rt.model.layers import MLP, CrossAttention
+
+# Channels of the raw head output, in order (13 numbers per query, as in the paper).
+HEAD_CHANNELS = {"points": 3, "uv": 2, "visibility_logit": 1, "motion": 3, "normals": 3, "confidence": 1}
+
+SceneKV = list[tuple[torch.Tensor, torch.Tensor]]
+
+
+class CrossAttentionBlock(nn.Module):
+    """``x + cross_attn(norm1(x), scene)`` then ``x + mlp(norm2(x))``; ``x: (B, N, dim)``."""
+
+    def __init__(self, dim: int, context_dim: int, heads: int, mlp_dim: int, eps: float):
+        super().__init__()
+        self.norm1 = nn.LayerNorm(dim, eps=eps)
+        self.attn = CrossAttention(dim, context_dim, heads)
+        self.norm2 = nn.LayerNorm(dim, eps=eps)
+        self.mlp = MLP(dim, mlp_dim)
+
+    def forward(self, x: torch.Tensor, keys: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        x = x + self.attn(self.norm1(x), keys, values)
+        return x + self.mlp(self.norm2(x))
+
+
+class PredictionHeads(nn.Module):
+    """Final LayerNorm and one linear head per output, then each output's activation.
+
+    ``forward(x: (B, N, dim)) -> dict`` of (B, N, ...) tensors:
+        points (3): raw. uv (2): raw (a point may leave the image). visibility_logit (1 -> squeezed) and
+        visibility = sigmoid(logit). motion (3): raw. normals (3): L2-normalised.
+        confidence (1 -> squeezed): positive, softplus or 1 + exp (config ``confidence_activation``).
+    """
+
+    def __init__(self, dim: int, eps: float, confidence_activation: str):
+        super().__init__()
+        self.norm = nn.LayerNorm(dim, eps=eps)
+        self.heads = nn.ModuleDict({name: nn.Linear(dim, size) for name, size in HEAD_CHANNELS.items()})
+        self.confidence_activation = confidence_activation
+
+    def forward(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        x = self.norm(x)
+        raw = {name: head(x) for name, head in self.heads.items()}
+        logit = raw["visibility_logit"].squeeze(-1)
+        conf = raw["confidence"].squeeze(-1).float()
+        if self.confidence_activation == "softplus":
+            confidence = F.softplus(conf) + 1e-6  # strictly positive: the loss takes log(c)
+        else:
+            confidence = 1.0 + torch.exp(conf.clamp(max=80.0))  # clamp: exp overflow guard, not a range limit
+        return {
+            "points": raw["points"],
+            "uv": raw["uv"],
+            "visibility": torch.sigmoid(logit),
+            "visibility_logit": logit,
+            "motion": raw["motion"],
+            "normals": F.normalize(raw["normals"].float(), dim=-1, eps=1e-6),
+            "confidence": confidence,
+        }
+
+
+class QueryDecoder(nn.Module):
+    """Decode query tokens against a clip's scene tokens.
+
+    Use ``kv = project_scene(tokens)`` once per clip, then ``forward(query_tokens, kv)`` for any number
+    of query batches. ``tokens: (B or 1, M, encoder_dim)``, ``query_tokens: (B, N, decoder_dim)``.
+    """
+
+    def __init__(self, config: D4RTConfig):
+        super().__init__()
+        self.config = config
+        self.blocks = nn.ModuleList(
+            CrossAttentionBlock(config.decoder_dim, config.encoder_dim, config.decoder_heads,
+                                config.decoder_mlp_dim, config.layer_norm_eps)
+            for _ in range(config.decoder_depth)
+        )
+        self.heads = PredictionHeads(config.decoder_dim, config.layer_norm_eps, config.confidence_activation)
+
+    def project_scene(self, tokens: torch.Tensor) -> SceneKV:
+        """Keys and values of every block: a list of ``decoder_depth`` pairs ``(B, heads, M, d)``."""
+        return [block.attn.project_context(tokens) for block in self.blocks]
+
+    def forward(self, query_tokens: torch.Tensor, scene_kv: SceneKV) -> dict[str, torch.Tensor]:
+        x = query_tokens
+        for block, (keys, values) in zip(self.blocks, scene_kv):
+            if self.config.gradient_checkpointing and self.training and torch.is_grad_enabled():
+                x = checkpoint(block, x, keys, values, use_reentrant=False)
+            else:
+                x = block(x, keys, values)
+        return self.heads(x)

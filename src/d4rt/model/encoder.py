@@ -1,0 +1,116 @@
+"""The video encoder E: a ViT over the tubelets of a whole clip -> the Global Scene Representation F.
+
+Tokens: one per tubelet (``tubelet_frames`` x ``patch_size`` x ``patch_size`` pixels), plus one
+aspect-ratio token (a linear embedding of the original W / H). Blocks alternate between frame-local
+attention (the tokens of one tubelet time step attend to each other) and global attention (every token
+of the clip, the aspect-ratio token included, attends to every other), as in VGGT. In frame-local
+blocks the aspect-ratio token forms a group of its own.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+from torch.utils.checkpoint import checkpoint
+
+from d4rt.config import D4RTConfig
+from d4rt.model.layers import SelfAttentionBlock, sincos_1d, sincos_2d
+
+
+class TubeletEmbedding(nn.Module):
+    """Cut the clip into tubelets and embed each linearly.
+
+    ``video: (B, T, H, W, 3)`` normalised pixels, T a multiple of ``tubelet_frames``, H and W multiples
+    of ``patch_size`` -> ``(B, T', H', W', dim)`` with T' = T / tubelet_frames, H' = H / patch_size.
+    The projection weight ``proj.weight: (dim, 3 * tubelet_frames * patch^2)`` flattens each tubelet in
+    (channel, time, row, column) order: exactly a Conv3d kernel ``(dim, 3, t, p, p)`` reshaped, which
+    is how VideoMAE v2 stores its patch embedding.
+    """
+
+    def __init__(self, tubelet_frames: int, patch_size: int, dim: int):
+        super().__init__()
+        self.tubelet_frames, self.patch_size = tubelet_frames, patch_size
+        self.proj = nn.Linear(3 * tubelet_frames * patch_size * patch_size, dim)
+
+    def forward(self, video: torch.Tensor) -> torch.Tensor:
+        b, t, h, w, c = video.shape
+        k, p = self.tubelet_frames, self.patch_size
+        x = video.reshape(b, t // k, k, h // p, p, w // p, p, c)
+        x = x.permute(0, 1, 3, 5, 7, 2, 4, 6)  # (B, T', H', W', C, k, p, p)
+        return self.proj(x.flatten(4))
+
+
+class SpaceTimePositions(nn.Module):
+    """Learned space-time position embedding, factorised as time + space.
+
+    ``time: (max_time_steps, dim)`` and ``space: (grid, grid, dim)`` are initialised with sine-cosine
+    values and trained. A clip with fewer time steps uses the first rows (time step i is always row i);
+    an input smaller than ``image_size`` (training at lower resolution) bilinearly resizes the spatial
+    table to its grid, so positions keep their meaning as fractions of the image.
+    """
+
+    def __init__(self, max_time_steps: int, grid: int, dim: int):
+        super().__init__()
+        self.time = nn.Parameter(sincos_1d(torch.arange(max_time_steps), dim))
+        self.space = nn.Parameter(sincos_2d(grid, dim))
+
+    def forward(self, steps: int, rows: int, cols: int) -> torch.Tensor:
+        """-> ``(steps, rows, cols, dim)`` to add to the tubelet tokens."""
+        space = self.space
+        if (rows, cols) != tuple(space.shape[:2]):
+            space = F.interpolate(space.permute(2, 0, 1)[None], size=(rows, cols), mode="bilinear",
+                                  align_corners=False)[0].permute(1, 2, 0)
+        return self.time[:steps, None, None, :] + space[None]
+
+
+class VideoEncoder(nn.Module):
+    """E(V): normalised video and aspect ratio -> scene tokens.
+
+    ``forward(video: (B, T, H, W, 3), aspect_ratio: (B,)) -> (B, T' * H' * W' + 1, dim)``: tubelet
+    tokens in (time, row, column) order followed by the aspect-ratio token, after a final LayerNorm.
+    ``video`` is normalised with the config's pixel mean/std; T a multiple of ``tubelet_frames`` and at
+    most ``max_frames`` rounded up to it; H, W multiples of ``patch_size`` at most ``image_size``.
+    """
+
+    def __init__(self, config: D4RTConfig):
+        super().__init__()
+        self.config = config
+        dim = config.encoder_dim
+        self.patch_embed = TubeletEmbedding(config.tubelet_frames, config.patch_size, dim)
+        self.pos_embed = SpaceTimePositions(config.max_time_steps, config.grid_size, dim)
+        # W / H as given (the paper's "linear embedding of the aspect ratio").
+        self.aspect_embed = nn.Linear(1, dim)
+        self.blocks = nn.ModuleList(
+            SelfAttentionBlock(dim, config.encoder_heads, config.encoder_mlp_dim, config.layer_norm_eps)
+            for _ in range(config.encoder_depth)
+        )
+        self.norm = nn.LayerNorm(dim, eps=config.layer_norm_eps)
+
+    def is_global(self, index: int) -> bool:
+        """Whether block ``index`` attends over the whole clip (else within one time step)."""
+        return (index + 1) % self.config.global_attention_every == 0
+
+    def forward(self, video: torch.Tensor, aspect_ratio: torch.Tensor) -> torch.Tensor:
+        b = video.shape[0]
+        tokens = self.patch_embed(video)  # (B, T', H', W', C)
+        _, steps, rows, cols, dim = tokens.shape
+        tokens = tokens + self.pos_embed(steps, rows, cols).to(tokens.dtype)
+        frames = tokens.reshape(b, steps, rows * cols, dim)
+        aspect = self.aspect_embed(aspect_ratio.reshape(b, 1, 1).to(self.aspect_embed.weight.dtype))
+
+        for index, block in enumerate(self.blocks):
+            if self.is_global(index):
+                x = torch.cat([frames.reshape(b, steps * rows * cols, dim), aspect], dim=1)
+                x = self._run(block, x)
+                frames, aspect = x[:, :-1].reshape(b, steps, rows * cols, dim), x[:, -1:]
+            else:
+                frames = self._run(block, frames.reshape(b * steps, rows * cols, dim)).reshape(b, steps, rows * cols, dim)
+                aspect = self._run(block, aspect)
+        x = torch.cat([frames.reshape(b, steps * rows * cols, dim), aspect], dim=1)
+        return self.norm(x)
+
+    def _run(self, block: nn.Module, x: torch.Tensor) -> torch.Tensor:
+        if self.config.gradient_checkpointing and self.training and torch.is_grad_enabled():
+            return checkpoint(block, x, use_reentrant=False)
+        return block(x)

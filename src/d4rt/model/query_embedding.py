@@ -1,0 +1,106 @@
+"""Query embedding: q = (u, v, t_src, t_tgt, t_cam) -> one token.
+
+token = Fourier(u, v) + E_src[t_src] + E_tgt[t_tgt] + E_cam[t_cam] + RGB-patch(u, v, t_src)   (five terms summed)
+
+Conventions: (u, v) in [0, 1] over the image with pixel centres at (i + 0.5) / W; the continuous pixel
+position of (u, v) is x = u * W - 0.5, y = v * H - 0.5 (OpenCV: the centre of the top-left pixel is
+(0, 0)). Times are 0-indexed frame indices of the real (unpadded) clip.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from d4rt.config import D4RTConfig
+from d4rt.model.layers import fourier_features, fourier_frequencies
+
+
+def sample_rgb_patches(
+    video: torch.Tensor,
+    uv: torch.Tensor,
+    frame: torch.Tensor,
+    size: int,
+    mean: torch.Tensor,
+    std: torch.Tensor,
+) -> torch.Tensor:
+    """Bilinear, sub-pixel ``size x size`` RGB patches centred at (u, v), normalised.
+
+    Args:
+        video: ``(B, T, H, W, 3)``, uint8 (0..255) or float in [0, 1]; stays in its dtype (only the
+            sampled pixels are converted, so an original-resolution uint8 video costs no extra memory).
+        uv: ``(B, N, 2)`` query positions in [0, 1].
+        frame: ``(B, N)`` integer frame index into T of each query.
+        size: patch side in pixels of ``video``; samples are 1 pixel apart, centred on (u, v).
+        mean, std: ``(3,)`` pixel normalisation applied to each sample.
+
+    Returns:
+        ``(B, N, size, size, 3)`` float32: ``(pixel - mean) / std``, rows top to bottom. Samples that
+        fall outside the image read as 0 (the mean colour); bilinear weights of outside neighbours are
+        dropped, not renormalised, so an edge fades to the mean colour.
+    """
+    b, t, h, w, _ = video.shape
+    n = uv.shape[1]
+    device = video.device
+    offsets = torch.arange(size, device=device, dtype=torch.float32) - (size - 1) / 2
+    x = (uv[..., 0].float() * w - 0.5)[..., None] + offsets  # (B, N, size) sample columns
+    y = (uv[..., 1].float() * h - 0.5)[..., None] + offsets  # (B, N, size) sample rows
+    x, y = x[..., None, :].expand(b, n, size, size), y[..., :, None].expand(b, n, size, size)
+    x0, y0 = x.floor(), y.floor()
+    wx1, wy1 = x - x0, y - y0
+    x0, y0 = x0.long(), y0.long()
+
+    flat = video.reshape(b * t * h * w, 3)
+    base = ((torch.arange(b, device=device)[:, None] * t + frame.long()) * (h * w))[..., None, None]
+    scale = 255.0 if video.dtype == torch.uint8 else 1.0
+    mean, std = mean.to(device, torch.float32), std.to(device, torch.float32)
+    out = torch.zeros(b, n, size, size, 3, device=device, dtype=torch.float32)
+    for dy, wy in ((0, 1 - wy1), (1, wy1)):
+        for dx, wx in ((0, 1 - wx1), (1, wx1)):
+            xi, yi = x0 + dx, y0 + dy
+            inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+            index = base + yi.clamp(0, h - 1) * w + xi.clamp(0, w - 1)
+            pixel = (flat[index].float() / scale - mean) / std
+            out += pixel * (wx * wy * inside)[..., None]
+    return out
+
+
+class QueryEmbedding(nn.Module):
+    """``forward(queries: (B, N, 5), patch_video: (B, T, H, W, 3) | None) -> (B, N, decoder_dim)``.
+
+    ``queries`` columns are [u, v, t_src, t_tgt, t_cam], already validated (u, v in [0, 1], times
+    integer frame indices < T). ``patch_video`` is where the RGB patch is cut from (the encoder-resolution
+    or the original video); it may be None only when ``rgb_patch_size`` is 0.
+
+    Fourier features: (u, v) themselves plus sin/cos at ``fourier_frequencies`` frequencies log-spaced
+    from 1 cycle per image to ``fourier_max`` (default: the encoder's Nyquist frequency, image_size / 2).
+    """
+
+    def __init__(self, config: D4RTConfig):
+        super().__init__()
+        self.config = config
+        dim = config.decoder_dim
+        # Derived from the config, so not saved in checkpoints.
+        self.register_buffer("frequencies", fourier_frequencies(config.fourier_frequencies, config.fourier_max),
+                             persistent=False)
+        self.register_buffer("pixel_mean", torch.tensor(config.pixel_mean), persistent=False)
+        self.register_buffer("pixel_std", torch.tensor(config.pixel_std), persistent=False)
+        self.fourier_proj = nn.Linear(2 + 4 * config.fourier_frequencies, dim)
+        self.time_src = nn.Embedding(config.max_frames, dim)
+        self.time_tgt = nn.Embedding(config.max_frames, dim)
+        self.time_cam = nn.Embedding(config.max_frames, dim)
+        p = config.rgb_patch_size
+        self.patch_proj = nn.Linear(3 * p * p, dim) if p > 0 else None
+
+    def forward(self, queries: torch.Tensor, patch_video: torch.Tensor | None) -> torch.Tensor:
+        uv = queries[..., :2]
+        t_src, t_tgt, t_cam = (queries[..., i].round().long() for i in (2, 3, 4))
+        token = self.fourier_proj(fourier_features(uv, self.frequencies))
+        token = token + self.time_src(t_src) + self.time_tgt(t_tgt) + self.time_cam(t_cam)
+        if self.patch_proj is not None:
+            if patch_video is None:
+                raise ValueError("rgb_patch_size > 0 needs the video to cut patches from")
+            patch = sample_rgb_patches(patch_video, uv, t_src, self.config.rgb_patch_size,
+                                       self.pixel_mean, self.pixel_std)
+            token = token + self.patch_proj(patch.flatten(-3).to(self.patch_proj.weight.dtype))
+        return token

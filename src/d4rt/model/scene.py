@@ -1,0 +1,109 @@
+"""EncodedScene: one clip encoded once, answering any number of queries.
+
+This is the thin user-facing layer over the pure modules (as CoTracker's predictor): it checks the
+queries, decodes them in chunks of bounded memory without gradients, and caches the per-layer keys and
+values of the scene tokens so each chunk only pays for its own queries.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import torch
+
+from d4rt.errors import UserError
+from d4rt.model.decoder import SceneKV
+from d4rt.model.inputs import check_queries
+
+if TYPE_CHECKING:
+    from d4rt.model.d4rt import D4RT
+
+OUTPUT_KEYS = ("points", "uv", "visibility", "motion", "normals", "confidence")
+
+
+class EncodedScene:
+    """The Global Scene Representation of one clip, with the inputs queries need.
+
+    Attributes:
+        tokens: ``(1, M, encoder_dim)`` scene tokens (tubelets in time, row, column order, then the
+            aspect-ratio token).
+        num_frames: T, the real frames of the clip (queries index 0..T-1).
+        height, width: size of the original frames in pixels.
+        aspect_ratio: width / height of the original frames.
+        patch_video: ``(1, T, h, w, 3)`` frames the RGB patches are cut from (encoder resolution, or the
+            original frames in their own dtype when ``rgb_patch_source == "original"``); None if patches
+            are disabled.
+    """
+
+    def __init__(self, model: "D4RT", tokens: torch.Tensor, num_frames: int, height: int, width: int,
+                 patch_video: torch.Tensor | None):
+        self.model = model
+        self.tokens = tokens
+        self.num_frames = num_frames
+        self.height, self.width = height, width
+        self.aspect_ratio = width / height
+        self.patch_video = patch_video
+        self._kv: SceneKV | None = None
+
+    def scene_kv(self, cache: bool = True) -> SceneKV:
+        """Per-decoder-layer keys and values of the scene tokens; computed once when ``cache``."""
+        if not cache:
+            return self.model.decoder.project_scene(self.tokens)
+        if self._kv is None:
+            self._kv = self.model.decoder.project_scene(self.tokens)
+        return self._kv
+
+    def clear_cache(self) -> None:
+        """Drop the cached keys/values (they are rebuilt on the next query)."""
+        self._kv = None
+
+    @torch.no_grad()
+    def query(self, queries: Any, chunk_size: int | None = None, cache_kv: bool | None = None) -> dict[str, torch.Tensor]:
+        """Decode independent queries.
+
+        Args:
+            queries: ``(N, 5)`` float = [u, v, t_src, t_tgt, t_cam]. (u, v) in [0, 1] over the image of
+                frame t_src (pixel centres at (i + 0.5) / W); times are integer frame indices in
+                [0, num_frames). Anything else raises :class:`UserError`.
+            chunk_size: queries decoded at once (default: config ``query_chunk_size``); only memory and
+                speed depend on it, never the answers.
+            cache_kv: reuse the scene keys/values across chunks and calls (default: config
+                ``cache_scene_kv``); False recomputes them for every chunk.
+
+        Returns:
+            dict of tensors on the model's device (OpenCV camera: x right, y down, z forward):
+
+            - ``points (N, 3)``: the 3D position at time t_tgt of the surface point seen at (u, v) in
+              frame t_src, in the camera coordinates of frame t_cam (the scale the model was trained in).
+            - ``uv (N, 2)``: the point's 2D position in frame t_tgt, same normalised (u, v) convention
+              (may leave [0, 1]).
+            - ``visibility (N,)``: probability that the point is visible in frame t_tgt.
+            - ``motion (N, 3)``: the point's 3D displacement from time t_src to t_tgt, in the camera
+              coordinates of t_cam.
+            - ``normals (N, 3)``: unit surface normal, camera coordinates of t_cam.
+            - ``confidence (N,)``: positive confidence of ``points`` (higher is more certain).
+        """
+        queries = check_queries(queries, self.num_frames)
+        device = self.tokens.device
+        queries = queries.to(device=device, dtype=torch.float32)
+        chunk = chunk_size if chunk_size is not None else self.model.config.query_chunk_size
+        if not isinstance(chunk, int) or chunk < 1:
+            raise UserError(f"chunk_size must be a positive integer, got {chunk!r}")
+        cache = self.model.config.cache_scene_kv if cache_kv is None else bool(cache_kv)
+
+        outputs: dict[str, list[torch.Tensor]] = {key: [] for key in OUTPUT_KEYS}
+        for start in range(0, queries.shape[0], chunk):
+            answer = self.model.decode(queries[None, start:start + chunk], self.scene_kv(cache), self.patch_video)
+            for key in OUTPUT_KEYS:
+                outputs[key].append(answer[key][0])
+        if queries.shape[0] == 0:
+            return self._empty()
+        return {key: torch.cat(parts) for key, parts in outputs.items()}
+
+    def _empty(self) -> dict[str, torch.Tensor]:
+        widths = {"points": 3, "uv": 2, "visibility": None, "motion": 3, "normals": 3, "confidence": None}
+        return {key: torch.zeros((0,) if w is None else (0, w), device=self.tokens.device) for key, w in widths.items()}
+
+    def __repr__(self) -> str:
+        return (f"EncodedScene(frames={self.num_frames}, original={self.width}x{self.height}, "
+                f"tokens={tuple(self.tokens.shape)})")
