@@ -88,7 +88,8 @@ def test_crop_resize_and_stride_keep_synthetic_ground_truth_exact(room_clip):
     # The re-rendered depth of the view is exact too: it unprojects to the view oracle's points.
     out = child.oracle.query(pixel_centre_queries(child, [0, 3]))
     pts = unproject_depth(child.depth[[0, 3]].astype(np.float64), child.intrinsics[[0, 3]]).reshape(-1, 3)
-    assert (np.abs(out["points"].numpy() - pts).max(1) / pts[:, 2]).max() < 1e-6
+    err = np.abs(out["points"].numpy() - pts).max(1) / pts[:, 2]
+    assert np.median(err) < 1e-7 and err.max() < 4e-6  # float32 depth, as for the full clip
     # Intrinsics follow the crop and the anisotropic resize (fx != fy afterwards).
     k = child.intrinsics[0]
     assert np.isclose(k[0, 0], room_clip.intrinsics[1, 0, 0] * 36 / 40)

@@ -28,7 +28,7 @@ def register(subparsers) -> None:
     p.add_argument("--camera-motion", choices=CAMERA_MOTIONS, default=None, help="default: random per clip")
     p.add_argument("--num-objects", type=int, default=None, help="default: 3 to 8 per clip")
     p.add_argument("--time-stride", type=int, default=1, help="frame k shows time k * stride / fps")
-    p.add_argument("--aa-samples", type=int, default=3, help="n x n supersampling of edge pixels (1 = off)")
+    p.add_argument("--aa-samples", type=int, default=2, help="n x n supersampling of edge pixels (1 = off)")
     p.add_argument("--device", default="cpu", help="torch device to ray-cast on")
     p.add_argument("--workers", type=int, default=1, help="parallel processes (CPU)")
     p.set_defaults(func=run)

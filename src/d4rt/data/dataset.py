@@ -40,7 +40,7 @@ class DatasetConfig:
     seed: int = 0
     frames: int = 16
     size: tuple[int, int] = (128, 128)
-    render_pixels: int = 160 * 160
+    render_pixels: int = 144 * 144
     render_aspect: tuple[float, float] = (0.5, 2.0)
     scene_options: dict = field(default_factory=dict)
     augment: AugmentConfig = field(default_factory=AugmentConfig)

@@ -57,46 +57,60 @@ def _sobel_magnitude(x: torch.Tensor) -> torch.Tensor:
     return torch.sqrt((g * g).sum((1, 2)))
 
 
-def scene_flow(clip: Clip) -> torch.Tensor:
-    """World-frame 3D motion of every pixel's surface point over one frame step: (T, H, W, 3) float64.
+def scene_flow(clip: Clip, frames=None, window: tuple[int, int, int, int] | None = None) -> torch.Tensor:
+    """World-frame 3D motion of every pixel's surface point over one frame step: (F, h, w, 3) float32.
 
-    Frame k uses the step k -> k + 1 (the last frame the step before it). Exact from depth, object ids
-    and body poses: the point moves with its rigid body.
+    Frame k uses the step k -> k + 1 (the last frame the step before it); exact from depth, object ids
+    and body poses, since the point moves with its rigid body. ``frames`` (default all) and ``window``
+    (x0, y0, w, h; default the whole frame) restrict the computation.
     """
     t_count = clip.num_frames
-    depth = torch.from_numpy(clip.depth).double()
+    frames = np.arange(t_count) if frames is None else np.asarray(frames, dtype=np.int64)
+    x0, y0, w, h = window or (0, 0, clip.width, clip.height)
+    depth = torch.from_numpy(clip.depth[frames, y0:y0 + h, x0:x0 + w]).float()
     if t_count < 2:
-        return torch.zeros(depth.shape + (3,), dtype=torch.float64)
-    cam = unproject_depth(depth, torch.from_numpy(clip.intrinsics))  # (T, H, W, 3)
-    c2w = torch.from_numpy(clip.cam_to_world)
-    world = torch.einsum("tij,thwj->thwi", c2w[:, :3, :3], cam) + c2w[:, None, None, :3, 3]
-    a = torch.clamp(torch.arange(t_count), max=t_count - 2)
-    o2w = torch.from_numpy(clip.object_to_world)
-    step = o2w[a + 1] @ torch.linalg.inv(o2w[a])  # (T, K, 4, 4): each body's motion over the step
-    ids = torch.from_numpy(clip.object_ids).long()
-    frame = torch.arange(t_count)[:, None, None].expand_as(ids)
-    flow = torch.zeros_like(world)
-    for k in torch.nonzero(torch.bincount(ids.reshape(-1))).squeeze(1).tolist():
-        m = ids == k
-        p, f = world[m], frame[m]
-        r = step[f, k]
-        flow[m] = torch.einsum("nij,nj->ni", r[:, :3, :3], p) + r[:, :3, 3] - p
-    return flow
+        return torch.zeros(depth.shape + (3,))
+    k = torch.from_numpy(clip.intrinsics[frames].copy())
+    k[:, 0, 2] -= x0  # the window's own pixel grid
+    k[:, 1, 2] -= y0
+    cam = unproject_depth(depth, k.float())  # (F, h, w, 3)
+    c2w = torch.from_numpy(clip.cam_to_world[frames]).float()
+    world = torch.einsum("fij,fhwj->fhwi", c2w[:, :3, :3], cam) + c2w[:, None, None, :3, 3]
+    a = np.minimum(frames, t_count - 2)
+    o2w = clip.object_to_world
+    step = torch.from_numpy((o2w[a + 1] @ np.linalg.inv(o2w[a]))[..., :3, :]).float()  # (F, K, 3, 4)
+    # One gather of every pixel's body motion: row (frame, body) of the flattened table.
+    ids = torch.from_numpy(clip.object_ids[frames, y0:y0 + h, x0:x0 + w].astype(np.int64))
+    row = (torch.arange(len(frames))[:, None, None] * o2w.shape[1] + ids).reshape(-1)
+    m = step.reshape(-1, 12).index_select(0, row).reshape(depth.shape + (3, 4))
+    moved = torch.einsum("fhwij,fhwj->fhwi", m[..., :3], world) + m[..., 3]
+    return moved - world
 
 
-def boundary_mask(clip: Clip, config: QuerySamplerConfig | None = None) -> torch.Tensor:
-    """Pixels within ``boundary_radius`` of a depth or motion boundary: (T, H, W) bool."""
+def boundary_mask(clip: Clip, config: QuerySamplerConfig | None = None, frames=None,
+                  window: tuple[int, int, int, int] | None = None) -> torch.Tensor:
+    """Pixels within ``boundary_radius`` of a depth or motion boundary: (F, h, w) bool for ``frames``
+    (default all) inside ``window`` (x0, y0, w, h; default the whole frame).
+
+    The filters run on the window grown by their reach, so a window's mask equals the same crop of the
+    whole frame's mask.
+    """
     config = config or QuerySamplerConfig()
-    depth = torch.from_numpy(clip.depth).double()
-    valid = torch.isfinite(depth) & (depth > 0)
-    log_depth = torch.log(torch.where(valid, depth, torch.ones_like(depth)))
-    edges = _sobel_magnitude(log_depth[:, None]) > config.depth_edge_threshold
-    flow = scene_flow(clip) / torch.where(valid, depth, torch.ones_like(depth))[..., None]
-    edges |= _sobel_magnitude(flow.permute(0, 3, 1, 2)) > config.motion_edge_threshold
+    x0, y0, w, h = window or (0, 0, clip.width, clip.height)
     r = config.boundary_radius
+    margin = 1 + r  # Sobel reach + dilation reach
+    gx0, gy0 = max(0, x0 - margin), max(0, y0 - margin)
+    gx1, gy1 = min(clip.width, x0 + w + margin), min(clip.height, y0 + h + margin)
+    frames = np.arange(clip.num_frames) if frames is None else np.asarray(frames, dtype=np.int64)
+    depth = torch.from_numpy(clip.depth[frames, gy0:gy1, gx0:gx1]).float()
+    valid = torch.isfinite(depth) & (depth > 0)
+    safe = torch.where(valid, depth, torch.ones_like(depth))
+    edges = _sobel_magnitude(torch.log(safe)[:, None]) > config.depth_edge_threshold
+    flow = scene_flow(clip, frames, (gx0, gy0, gx1 - gx0, gy1 - gy0)) / safe[..., None]
+    edges |= _sobel_magnitude(flow.permute(0, 3, 1, 2)) > config.motion_edge_threshold
     if r > 0:
         edges = F.max_pool2d(edges[:, None].float(), 2 * r + 1, stride=1, padding=r)[:, 0] > 0
-    return edges
+    return edges[:, y0 - gy0:y0 - gy0 + h, x0 - gx0:x0 - gx0 + w]
 
 
 class QuerySampler:
@@ -106,8 +120,7 @@ class QuerySampler:
         self.config = config or QuerySamplerConfig()
         self.config.validate()
 
-    def sample(self, clip: Clip, rng: np.random.Generator, view: View | None = None,
-               boundaries: torch.Tensor | None = None) -> dict:
+    def sample(self, clip: Clip, rng: np.random.Generator, view: View | None = None) -> dict:
         """Queries for ``clip`` seen through ``view`` (default: the whole clip).
 
         Returns ``queries (N, 5)`` float64 in the view's coordinates and frame indices,
@@ -117,11 +130,10 @@ class QuerySampler:
         cfg = self.config
         view = view or View.full(clip.num_frames, clip.height, clip.width)
         view.check_frames(clip.num_frames)
-        if boundaries is None:
-            boundaries = boundary_mask(clip, cfg)
         n, t_view = cfg.num_queries, view.num_frames
         x0, y0, w, h = view.crop
         frames = np.asarray(view.frames)
+        band = boundary_mask(clip, cfg, frames, view.crop).numpy()  # (T_view, h, w)
 
         t_src = rng.integers(0, t_view, n)
         t_tgt = rng.integers(0, t_view, n)
@@ -134,7 +146,6 @@ class QuerySampler:
         from_boundary[rng.permutation(n)[:n_boundary]] = True
         cols = rng.integers(0, w, n) + x0
         rows = rng.integers(0, h, n) + y0
-        band = boundaries[frames][:, y0:y0 + h, x0:x0 + w].numpy()
         for f in np.unique(t_src[from_boundary]):
             pick = np.nonzero(from_boundary & (t_src == f))[0]
             ys, xs = np.nonzero(band[f])

@@ -8,7 +8,7 @@ from d4rt.synthetic.render import render
 from d4rt.synthetic.sampling import SceneOptions, sample_scene
 
 
-def render_clip(seed: int, frames: int, height: int, width: int, *, device="cpu", aa_samples: int = 3,
+def render_clip(seed: int, frames: int, height: int, width: int, *, device="cpu", aa_samples: int = 2,
                 **scene_options) -> Clip:
     """Render a random dynamic scene: the same arguments give the same clip, bit for bit (same device).
 

@@ -17,6 +17,8 @@ import torch
 from d4rt.synthetic.scene import SceneDescription
 from d4rt.synthetic.shapes import canonical_normal, intersect
 
+CURVED = ("sphere", "cylinder", "cone", "outdoor")
+
 
 @dataclass
 class Hits:
@@ -43,17 +45,23 @@ class SceneTracer:
         scale = np.array([b.half_extents for b in scene.bodies], dtype=np.float64)  # (K, 3)
         rot = pose[..., :3, :3]
         trans = pose[..., :3, 3]
-        # canonical = diag(1/s) R^T (x - t): computed in float64, then stored in the tracer's dtype.
+        # canonical = diag(1/s) R^T (x - t), stored as [diag(1/s) R^T | t]. Subtracting t first keeps
+        # float32 precise: folding it into an offset would cancel large terms for distant bodies.
         lin = np.swapaxes(rot, -1, -2) / scale[None, :, :, None]
-        off = -np.einsum("tkij,tkj->tki", lin, trans)
-        to_canon = np.concatenate([lin, off[..., None]], -1)  # (T, K, 3, 4)
-        self.to_canonical = torch.as_tensor(to_canon, dtype=dtype, device=self.device)
-        self.translation = torch.as_tensor(trans, dtype=dtype, device=self.device)
-        # Surface computations always run in float64, whatever the tracing dtype (see ``surface``).
-        f64 = dict(dtype=torch.float64, device=self.device)
-        self.to_canonical64 = torch.as_tensor(to_canon, **f64)
-        self.rotation64 = torch.as_tensor(rot, **f64)  # body-to-world rotation
-        self.scale64 = torch.as_tensor(scale, **f64)
+        to_canon = np.concatenate([lin, trans[..., None]], -1)  # (T, K, 3, 4)
+        # One contiguous (T, ...) table per body: per-ray rows are gathered with index_select, far
+        # cheaper than advanced indexing into (T, K, ...) arrays. float64 copies give exact depths on
+        # curved bodies (see ``surface``).
+        def tables(array, dtype_):
+            return [torch.as_tensor(np.ascontiguousarray(array[:, k]), dtype=dtype_, device=self.device)
+                    for k in range(scene.num_bodies)]
+
+        self._canon = tables(to_canon, dtype)  # world -> canonical primitive frame, (T, 3, 4)
+        self._canon64 = tables(to_canon, torch.float64)
+        self._rotation = tables(rot, dtype)  # body -> world rotation, (T, 3, 3)
+        self._translation = tables(trans, dtype)  # body origin in the world, (T, 3)
+        self.translation = torch.as_tensor(trans, dtype=dtype, device=self.device)  # (T, K, 3)
+        self.scale = torch.as_tensor(scale, dtype=dtype, device=self.device)  # (K, 3) half-extents
         self.radius = [b.bounding_radius for b in scene.bodies]
 
     # ---------------------------------------------------------------------------------------------
@@ -80,7 +88,7 @@ class SceneTracer:
                     continue
             else:
                 x0, y0, x1, y1 = 0, 0, w, h
-            a = self.to_canonical[frames, k]  # (F, 3, 4)
+            a = rows(self._canon[k], frames)  # (F, 3, 4)
             o_c = _affine(a, origins)  # per frame
             o_c = tuple(c[:, None, None] for c in o_c)
             d_block = [c[:, y0:y1, x0:x1] for c in planes]
@@ -117,7 +125,7 @@ class SceneTracer:
             fr = frames if idx is None else frames[idx]
             o = origins if idx is None else origins[idx]
             d = dirs if idx is None else dirs[idx]
-            a = self.to_canonical[fr, k]
+            a = rows(self._canon[k], fr)
             t, face = intersect(body.shape, _affine(a, o), _linear(a, d), t_min, body.r_top)
             cur = best_t if idx is None else best_t[idx]
             nearer = t < cur
@@ -134,7 +142,7 @@ class SceneTracer:
 
     def _sphere_candidates(self, k, frames, origins, dirs, t_min, t_max):
         """Indices of rays that pass within body k's bounding sphere (ahead of t_min, before t_max)."""
-        centre = self.translation[:, k][frames]
+        centre = rows(self._translation[k], frames)
         cx, cy, cz = (centre[:, i] - origins[:, i] for i in range(3))
         dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
         dd = dx * dx + dy * dy + dz * dz
@@ -150,40 +158,47 @@ class SceneTracer:
         return torch.nonzero(ok).squeeze(1)
 
     # ---------------------------------------------------------------------------------------------
-    def surface(self, frames: torch.Tensor, origins: torch.Tensor, dirs: torch.Tensor, hits: Hits) -> dict:
-        """Surface data of hit rays, in float64. frames: (M,) long; origins, dirs: (M, 3); hits: (M,).
+    def surface(self, frames: torch.Tensor, origins: torch.Tensor, dirs: torch.Tensor, hits: Hits,
+                exact_depth: bool = False) -> dict:
+        """Surface data of hit rays, in the tracer's dtype. frames: (M,) long; origins, dirs: (M, 3)
+        (pass them in float64 when ``exact_depth``); hits: (M,).
 
-        The hit found by tracing (possibly in float32) decides WHICH body a ray sees; the ray is then
-        intersected again with that body alone in float64, so depths and points are exact to float64
-        rounding (and to float32 rounding once stored). Returns ``t (M,)`` (the refined ray parameter),
-        ``world_point (M,3)``, ``world_normal (M,3)`` (unit, facing the ray's side) and
-        ``local_point (M,3)`` (body frame, metres: where textures live).
+        Returns ``t (M,)``, ``world_point (M,3)``, ``world_normal (M,3)`` (unit, facing the ray's side)
+        and ``local_point (M,3)`` (body frame, metres: where textures live). With ``exact_depth``, also
+        ``t_exact (M,)`` in float64: the hit decides WHICH body a ray sees, and rays on curved bodies
+        are intersected again with that body alone in float64. (Their float32 roots lose digits to
+        cancellation when the camera is many radii away; plane hits keep float32's relative precision.)
         """
-        o64, d64 = origins.to(torch.float64), dirs.to(torch.float64)
-        t = hits.t.to(torch.float64).clone()
-        local = torch.empty_like(o64)
-        normal = torch.empty_like(o64)
+        dt = self.dtype
+        o, d = origins.to(dt), dirs.to(dt)
+        t = hits.t.to(dt)
+        t_exact = hits.t.to(torch.float64).clone() if exact_depth else None
+        local = torch.empty_like(o)
+        normal = torch.empty_like(o)
         obj = hits.obj.long()
-        face = hits.face.clone()
         for k in present_ids(obj):
             body = self.scene.bodies[k]
             idx = torch.nonzero(obj == k).squeeze(1)
             fr = frames[idx]
-            a = self.to_canonical64[fr, k]
-            o_c, d_c = _affine(a, o64[idx]), _linear(a, d64[idx])
-            t_ref, face_ref = intersect(body.shape, o_c, d_c, 0.0, body.r_top)
-            keep = torch.isfinite(t_ref)  # a grazing float32 hit may vanish in float64: keep it then
-            t_k = torch.where(keep, t_ref, t[idx])
-            f_k = torch.where(keep, face_ref, face[idx])
-            p_c = torch.stack([o + t_k * d for o, d in zip(o_c, d_c)], -1)
-            s = self.scale64[k]
-            n_local = canonical_normal(body.shape, p_c, f_k, body.r_top) / s
-            n_world = _rotate(self.rotation64[fr, k], n_local)
-            t[idx], face[idx] = t_k, f_k
-            local[idx] = p_c * s
+            if exact_depth and body.shape in CURVED and dt != torch.float64:
+                a64 = rows(self._canon64[k], fr)
+                o64, d64 = origins[idx].to(torch.float64), dirs[idx].to(torch.float64)
+                t_ref, _ = intersect(body.shape, _affine(a64, o64), _linear(a64, d64), 0.0, body.r_top)
+                # A grazing float32 hit may vanish in float64: keep the traced one then.
+                t_exact[idx] = torch.where(torch.isfinite(t_ref), t_ref, t_exact[idx])
+                t[idx] = t_exact[idx].to(dt)
+            a = rows(self._canon[k], fr)
+            o_c, d_c = _affine(a, o[idx]), _linear(a, d[idx])
+            t_k = t[idx]
+            p_c = torch.stack([oc + t_k * dc for oc, dc in zip(o_c, d_c)], -1)
+            n_local = canonical_normal(body.shape, p_c, hits.face[idx], body.r_top) / self.scale[k]
+            n_world = _rotate(rows(self._rotation[k], fr), n_local)
+            local[idx] = p_c * self.scale[k]
             normal[idx] = n_world / n_world.norm(dim=-1, keepdim=True)
-        world = o64 + t[:, None] * d64
-        return {"t": t, "face": face, "world_point": world, "world_normal": normal, "local_point": local}
+        out = {"t": t, "world_point": o + t[:, None] * d, "world_normal": normal, "local_point": local}
+        if exact_depth:
+            out["t_exact"] = t_exact
+        return out
 
     def projected_rects(self, frames: torch.Tensor, cam_to_world: torch.Tensor, intrinsics: torch.Tensor,
                         height: int, width: int, near: float = 1e-3) -> torch.Tensor:
@@ -216,6 +231,11 @@ class SceneTracer:
         return rect.long()
 
 
+def rows(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """table[index] along the first axis, through index_select (fast for per-ray gathers)."""
+    return table.index_select(0, index)
+
+
 def present_ids(obj: torch.Tensor) -> list[int]:
     """Sorted body ids that occur in ``obj`` (bincount: much cheaper than a sort-based unique)."""
     return torch.nonzero(torch.bincount(obj.reshape(-1).long())).squeeze(1).tolist()
@@ -229,9 +249,9 @@ def _linear(a: torch.Tensor, v):
 
 
 def _affine(a: torch.Tensor, p: torch.Tensor):
-    """(..., 3, 4) affine maps applied to (..., 3) points, as x, y, z components."""
-    x, y, z = p[..., 0], p[..., 1], p[..., 2]
-    return tuple(a[..., i, 0] * x + a[..., i, 1] * y + a[..., i, 2] * z + a[..., i, 3] for i in range(3))
+    """Maps [L | t] (..., 3, 4) applied to (..., 3) points as L (p - t), returned as x, y, z components."""
+    x, y, z = (p[..., i] - a[..., i, 3] for i in range(3))
+    return tuple(a[..., i, 0] * x + a[..., i, 1] * y + a[..., i, 2] * z for i in range(3))
 
 
 def _rotate(r: torch.Tensor, v: torch.Tensor) -> torch.Tensor:

@@ -14,7 +14,7 @@ import torch
 
 from d4rt.geometry.camera import pixel_rays
 from d4rt.synthetic import textures
-from d4rt.synthetic.raytrace import Hits, SceneTracer, _rotate, present_ids
+from d4rt.synthetic.raytrace import Hits, SceneTracer, _rotate, present_ids, rows
 from d4rt.synthetic.scene import SceneDescription
 
 # Rays per chunk of frames: bounds memory at about 1 GB on any resolution.
@@ -22,7 +22,7 @@ CHUNK_RAYS = 1 << 19
 
 
 def render(scene: SceneDescription, intrinsics: np.ndarray, cam_to_world: np.ndarray, object_to_world: np.ndarray,
-           height: int, width: int, device="cpu", aa_samples: int = 3, geometry_only: bool = False) -> dict:
+           height: int, width: int, device="cpu", aa_samples: int = 2, geometry_only: bool = False) -> dict:
     """Render every frame. intrinsics: (T, 3, 3); cam_to_world: (T, 4, 4); object_to_world: (T, K, 4, 4).
 
     Returns numpy arrays: ``rgb (T,H,W,3) uint8`` (absent if geometry_only), ``depth (T,H,W) float32``
@@ -60,28 +60,26 @@ def _render_chunk(tracer, frames, intrinsics, cam_to_world, height, width, aa_sa
     hits = tracer.trace_grid(frames, origins64.to(dt), dirs64.to(dt), rects)
 
     f = frames.shape[0]
-    local = torch.arange(f, device=dev)[:, None].expand(f, height * width).reshape(-1)  # index in the chunk
-    flat_frames = frames[local]
-    flat_origins = origins64[local]
+    hw = height * width
+    flat_frames = frames[:, None].expand(f, hw).reshape(-1)
+    flat_origins = origins64[:, None].expand(f, hw, 3).reshape(-1, 3)
     flat_dirs = dirs64.reshape(-1, 3)
-    surf = tracer.surface(flat_frames, flat_origins, flat_dirs,
-                          Hits(hits.t.reshape(-1), hits.obj.reshape(-1), hits.face.reshape(-1)))
-    normal_cam = _rotate(rot.transpose(-1, -2)[local], surf["world_normal"])
+    flat_hits = Hits(hits.t.reshape(-1), hits.obj.reshape(-1), hits.face.reshape(-1))
+    surf = tracer.surface(flat_frames, flat_origins, flat_dirs, flat_hits, exact_depth=True)
+    normal_cam = _rotate(rot.transpose(-1, -2)[:, None], surf["world_normal"].reshape(f, hw, 3))
     result = {
-        "depth": surf["t"].reshape(f, height, width).to(torch.float32),
+        "depth": surf["t_exact"].reshape(f, height, width).to(torch.float32),
         "normals": normal_cam.reshape(f, height, width, 3).to(torch.float32),
         "object_ids": hits.obj,
     }
     if geometry_only:
         return result
 
-    refined = Hits(surf["t"].to(dt), hits.obj.reshape(-1), surf["face"])
-    surf32 = {k: surf[k].to(dt) for k in ("world_point", "world_normal", "local_point")}
-    color = shade(tracer, flat_frames, flat_origins.to(dt), flat_dirs.to(dt), refined, surf32,
-                  intrinsics[local, 0, 0].to(dt))
+    focal = intrinsics[:, 0, 0].to(dt)[:, None].expand(f, hw).reshape(-1)
+    color = shade(tracer, flat_frames, flat_origins.to(dt), flat_dirs.to(dt), flat_hits, surf, focal)
     color = color.reshape(f, height, width, 3)
     if aa_samples > 1:
-        edges = _edge_pixels(Hits(hits.t, hits.obj, surf["face"].reshape(f, height, width)), result["normals"])
+        edges = _edge_pixels(hits, result["normals"])
         if edges.any():
             color[edges] = _supersample(tracer, frames, intrinsics.to(dt), cam_to_world.to(dt), edges, aa_samples)
     result["rgb"] = _to_srgb8(color)
@@ -180,23 +178,29 @@ def _edge_pixels(hits: Hits, normals: torch.Tensor) -> torch.Tensor:
 
 
 def _supersample(tracer, frames, intrinsics, cam_to_world, edges, n: int) -> torch.Tensor:
-    """Mean radiance of an n x n stratified grid of rays inside each edge pixel: (E, 3)."""
+    """Mean radiance of an n x n stratified grid of rays inside each edge pixel: (E, 3).
+
+    All E * n * n rays are cast in one batch; the mean is accumulated in a fixed order so the result
+    is bit-reproducible.
+    """
     dev, dt = tracer.device, tracer.dtype
     fi, yi, xi = torch.nonzero(edges, as_tuple=True)
     offsets = (torch.arange(n, device=dev, dtype=dt) + 0.5) / n - 0.5
-    total = torch.zeros((fi.shape[0], 3), dtype=dt, device=dev)
-    rot = cam_to_world[:, :3, :3]
-    for oy in offsets.tolist():
-        for ox in offsets.tolist():  # explicit accumulation keeps the sum order fixed (bit-reproducible)
-            xy = torch.stack([xi.to(dt) + ox, yi.to(dt) + oy], -1)
-            d = _rotate(rot[fi], pixel_rays(xy, intrinsics[fi]))
-            o = cam_to_world[fi, :3, 3]
-            fr = frames[fi]
-            hits = tracer.trace_rays(fr, o, d)
-            surf = tracer.surface(fr, o, d, hits)
-            surf = {k: v.to(dt) for k, v in surf.items() if k != "face"}
-            total += shade(tracer, fr, o, d, hits, surf, intrinsics[fi, 0, 0])
-    return total / (n * n)
+    oy, ox = (o.reshape(-1) for o in torch.meshgrid(offsets, offsets, indexing="ij"))
+    s = oy.shape[0]
+    fi_s = fi.repeat_interleave(s)
+    xy = torch.stack([(xi.to(dt)[:, None] + ox).reshape(-1), (yi.to(dt)[:, None] + oy).reshape(-1)], -1)
+    pose, k = rows(cam_to_world, fi_s), rows(intrinsics, fi_s)
+    d = _rotate(pose[:, :3, :3], pixel_rays(xy, k))
+    o = pose[:, :3, 3]
+    fr = frames[fi_s]
+    hits = tracer.trace_rays(fr, o, d)
+    surf = tracer.surface(fr, o, d, hits)
+    color = shade(tracer, fr, o, d, hits, surf, k[:, 0, 0]).reshape(-1, s, 3)
+    total = color[:, 0]
+    for i in range(1, s):
+        total = total + color[:, i]
+    return total / s
 
 
 def _to_srgb8(linear: torch.Tensor) -> torch.Tensor:

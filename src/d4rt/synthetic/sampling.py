@@ -211,6 +211,11 @@ class _CameraPath:
             return self.start + self.speed * self.wander(tau), self.target + 0.3 * self.look_wander(tau)
         return self.start, self.target  # static
 
+    def centre(self, tau: float) -> np.ndarray:
+        """Camera centre only (cheaper than ``pose``: used by the scene's placement checks)."""
+        c = self.centre_and_target(tau)[0]
+        return c + self.shake_pos(tau) if self.shake_pos is not None else c
+
     def pose(self, tau: float) -> np.ndarray:
         c, g = self.centre_and_target(tau)
         rot = look_at(c, g, self.roll)
@@ -491,14 +496,14 @@ def sample_scene(seed: int, frames: int, height: int, width: int, options: Scene
         target = start + np.array([dist * math.cos(yaw), dist * math.sin(yaw), 0.0])
         target[2] = rng.uniform(0.3, 1.2)
         camera = _CameraPath(rng, cam_kind, start, target, speed * 0.5**attempt, shake, zoom, duration)
-        centres = np.array([camera.pose(t)[:3, 3] for t in taus])
+        centres = np.array([camera.centre(t) for t in taus])
         if room_box is None or (np.all(np.abs(centres[:, :2]) <= room_box - 0.3)
                                 and np.all((centres[:, 2] > 0.3) & (centres[:, 2] < ceiling - 0.3))):
             break
     else:
         camera = _CameraPath(rng, "static", start, target, 0.0, False, zoom, duration)
         cam_kind = "static"
-    cam_centres = np.array([camera.pose(t)[:3, 3] for t in taus])
+    cam_centres = np.array([camera.centre(t) for t in taus])
 
     # Foreground bodies.
     placement = _Placement(None if room_box is None else np.array([*room_box, ceiling]), ceiling, cam_centres, taus)

@@ -10,6 +10,7 @@ anti-aliased separately by supersampling (render.py).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -17,25 +18,26 @@ import torch
 
 from d4rt.synthetic.scene import Material
 
-NOISE_COMPONENTS = 8
+NOISE_COMPONENTS = 8  # sinusoids per noise; the fine "grain" noise uses half as many
 
 
-def _noise_table(seed: int, base_frequency: float, device, dtype) -> torch.Tensor:
-    """Random sinusoid components (direction xyz, frequency, phase, amplitude): (NOISE_COMPONENTS, 6)."""
+@functools.lru_cache(maxsize=4096)
+def _noise_table(seed: int, base_frequency: float, components: int) -> tuple[tuple[float, ...], ...]:
+    """Random sinusoid components (direction xyz, frequency, phase, amplitude), one row each."""
     rng = np.random.default_rng(seed)
-    dirs = rng.normal(size=(NOISE_COMPONENTS, 3))
+    dirs = rng.normal(size=(components, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    freqs = base_frequency * 2.0 ** (np.arange(NOISE_COMPONENTS) * 0.55 + rng.uniform(0, 0.5, NOISE_COMPONENTS))
-    phases = rng.uniform(0, 2 * math.pi, NOISE_COMPONENTS)
+    freqs = base_frequency * 2.0 ** (np.arange(components) * 0.55 + rng.uniform(0, 0.5, components))
+    phases = rng.uniform(0, 2 * math.pi, components)
     amps = freqs ** -0.8
     amps /= np.sqrt(np.sum(amps**2) / 2.0) * 2.0  # about 2 standard deviations span [-1, 1]
-    table = np.concatenate([dirs, freqs[:, None], phases[:, None], amps[:, None]], 1)
-    return torch.as_tensor(table, dtype=dtype, device=device)
+    return tuple(map(tuple, np.concatenate([dirs, freqs[:, None], phases[:, None], amps[:, None]], 1).tolist()))
 
 
-def noise(points: torch.Tensor, footprint: torch.Tensor, seed: int, frequency: float) -> torch.Tensor:
+def noise(points: torch.Tensor, footprint: torch.Tensor, seed: int, frequency: float,
+          components: int = NOISE_COMPONENTS) -> torch.Tensor:
     """Smooth band-limited noise in about [-1, 1]. points: (M, 3); footprint: (M,) -> (M,)."""
-    table = _noise_table(seed, frequency, points.device, points.dtype).tolist()
+    table = _noise_table(seed, frequency, components)
     out = torch.zeros_like(footprint)
     w2 = footprint * footprint
     for dx, dy, dz, f, phase, amp in table:
@@ -74,7 +76,8 @@ def albedo(material: Material, points: torch.Tensor, footprint: torch.Tensor) ->
         mask = _smoothstep(-0.25, 0.25, noise(points, footprint, material.noise_seed + 1, material.noise_frequency))
         base = base + (_pattern(material.secondary, points, footprint) - base) * mask[:, None]
     if material.grain > 0:
-        grain = noise(points, footprint, material.noise_seed + 2, material.noise_frequency * 4.0)
+        grain = noise(points, footprint, material.noise_seed + 2, material.noise_frequency * 4.0,
+                      NOISE_COMPONENTS // 2)
         base = base * (1.0 + material.grain * grain)[:, None]
     return base.clamp(0.0, 1.0)
 
