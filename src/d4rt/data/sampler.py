@@ -49,7 +49,7 @@ class QuerySamplerConfig:
 def _sobel_magnitude(x: torch.Tensor) -> torch.Tensor:
     """Per-pixel gradient magnitude of (T, C, H, W) maps with the 3x3 Sobel filter (/8: units per pixel),
     summed over channels in quadrature -> (T, H, W). Borders replicate."""
-    kx = torch.tensor([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]], dtype=x.dtype) / 8.0
+    kx = torch.tensor([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]], dtype=x.dtype, device=x.device) / 8.0
     k = torch.stack([kx, kx.T])[:, None]  # (2, 1, 3, 3)
     t, c, h, w = x.shape
     padded = F.pad(x.reshape(t * c, 1, h, w), (1, 1, 1, 1), mode="replicate")
