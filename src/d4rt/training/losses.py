@@ -1,0 +1,181 @@
+"""The paper's training losses (App. A), each masked to the queries whose ground truth exists.
+
+    L = c * L3D - w_conf * log(c) + w_2d * L2D + w_vis * Lvis + w_motion * Lmotion + w_normal * Lnormal
+
+with default weights 1 / 0.2 / 0.1 / 0.1 / 0.1 / 0.5. Every term is a mean over the queries where it is
+defined (pooled over the clips of the batch), so a batch with many missing targets does not shrink the
+loss.
+
+Which ground truth each term needs (``valid`` and ``uv_valid`` come from the dataset, see
+:func:`d4rt.data.make_training_sample`):
+
+======================  =============  =====================================================================
+term                    mask           why
+======================  =============  =====================================================================
+L3D, confidence         ``valid``      the query pixel shows a surface (no sky, no missing depth)
+motion, normals         ``valid``      defined for every existing surface point, in camera t_cam
+visibility              ``valid``      a point behind camera t_tgt or outside its image is simply *not
+                                       visible*: target 0 is ground truth, so it is supervised
+L2D                     ``uv_valid``   the projection into frame t_tgt only exists in front of that camera;
+                                       behind it (z <= 0) there is no 2D position to regress. In front of
+                                       the camera but outside the image it is still supervised (the head
+                                       may leave [0, 1]); L1 keeps the gradient bounded for far projections
+======================  =============  =====================================================================
+
+Choices the paper leaves open (documented in docs/training.md, configurable in :class:`LossConfig`):
+
+- *Per-clip mean depth.* The 3D targets of one clip live in different cameras t_cam. We normalise each
+  clip's points by ONE scalar: the mean of ``|z|`` over the clip's valid queries, each ``z`` taken in the
+  query's own camera t_cam, computed separately for the prediction and for the target. One scalar per clip
+  (not per camera) because all cameras of a clip share one scale: per-camera factors would let the
+  prediction scale each camera differently and break the cross-view consistency that camera poses are
+  fitted from. ``|z|`` (not ``z``) so that points behind camera t_cam, which exist when t_cam != t_tgt,
+  add to the scale instead of cancelling it.
+- *L1* is the L1 norm of the error vector (sum over its coordinates), then the mean over queries.
+- *Motion* is compared in the same normalised units as the points (prediction divided by the
+  prediction's scale, target by the target's), so that ``points(t_tgt) - points(t_src) = motion`` holds
+  in the model's own scale. The prediction's scale is detached there: the free overall scale of the
+  points is fixed by L3D alone. ``normalise_motion=False`` compares raw vectors.
+- *Normals*: ``1 - cos(pred, target)``. *Visibility*: binary cross-entropy on the model's logit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from d4rt.errors import UserError
+
+# Prediction and batch keys the loss reads.
+PREDICTION_KEYS = ("points", "uv", "visibility_logit", "motion", "normals", "confidence")
+# Guards a degenerate all-zero prediction only; real scenes are many orders of magnitude deeper.
+_MIN_SCALE = 1e-12
+
+
+@dataclass
+class LossConfig:
+    """Weights of the loss terms (paper defaults) and the open choices described in the module docstring.
+
+    confidence_weighting: multiply L3D by the predicted confidence c and add ``-w_conf * log(c)``
+        (Kendall & Gal). False trains plain L3D (the paper's "no confidence" ablation).
+    """
+
+    weight_3d: float = 1.0
+    weight_confidence: float = 0.2
+    weight_2d: float = 0.1
+    weight_visibility: float = 0.1
+    weight_motion: float = 0.1
+    weight_normal: float = 0.5
+    confidence_weighting: bool = True
+    normalise_motion: bool = True
+
+    def validate(self) -> None:
+        for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
+                     "weight_normal"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
+                raise UserError(f"loss {name} must be a number >= 0, got {value!r}")
+        if self.confidence_weighting and self.weight_confidence <= 0:
+            raise UserError("loss weight_confidence must be > 0 with confidence_weighting (else c collapses to 0)")
+
+
+def log_compress(x: torch.Tensor) -> torch.Tensor:
+    """``sign(x) * log(1 + |x|)``, elementwise: tames far points while keeping near ones linear."""
+    return torch.sign(x) * torch.log1p(x.abs())
+
+
+def mean_depth(points: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Per-clip mean of ``|z|`` over the masked queries.
+
+    points: (B, N, 3) in each query's camera t_cam; mask: (B, N) bool. Returns (B,), at least a tiny
+    positive number (a clip without any valid query gets that minimum; its queries are masked anyway).
+    """
+    depth = torch.where(mask, points[..., 2].abs(), torch.zeros_like(points[..., 2]))
+    count = mask.sum(1).clamp_min(1).to(points.dtype)
+    return (depth.sum(1) / count).clamp_min(_MIN_SCALE)
+
+
+def masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean of ``values`` (B, N) over ``mask`` (B, N) bool; 0 (still attached to the graph) if empty.
+    ``where`` instead of a product so that a non-finite value under the mask cannot leak in."""
+    picked = torch.where(mask, values, torch.zeros_like(values))
+    return picked.sum() / mask.sum().clamp_min(1)
+
+
+def point_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Per-query L3D: (B, N). Both point sets are divided by their own per-clip mean depth, log-compressed,
+    and compared with the L1 norm. Invariant to a positive scale of either set."""
+    pred_n = pred / mean_depth(pred, mask)[:, None, None]
+    target_n = target / mean_depth(target, mask)[:, None, None]
+    return (log_compress(pred_n) - log_compress(target_n)).abs().sum(-1)
+
+
+def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
+              config: LossConfig | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """The total training loss and every term, from a batched forward and its targets.
+
+    Args:
+        pred: the model's training outputs, ``points (B,N,3)``, ``uv (B,N,2)``, ``visibility_logit (B,N)``,
+            ``motion (B,N,3)``, ``normals (B,N,3)`` (unit), ``confidence (B,N)`` (positive); any dtype
+            (computed in float32).
+        batch: targets as the dataset yields them, ``points``, ``uv``, ``visibility`` (0/1), ``motion``,
+            ``normals`` (zeros where undefined) and the masks ``valid (B,N)``, ``uv_valid (B,N)`` (bool).
+        config: weights and choices; default :class:`LossConfig()` (the paper's).
+
+    Returns:
+        ``(total, terms)``: the scalar to minimise and a dict of detached scalars, each unweighted:
+        ``3d`` (plain L3D), ``3d_confident`` (c * L3D), ``confidence`` (-log c), ``2d``, ``visibility``,
+        ``motion``, ``normal``, plus ``confidence_mean`` (mean c) and ``valid_fraction``, ``uv_fraction``.
+    """
+    config = config or LossConfig()
+    p = {k: pred[k].float() for k in PREDICTION_KEYS}
+    valid, uv_valid = batch["valid"].bool(), batch["uv_valid"].bool()
+    # Targets are zeroed where they are missing, so that nothing undefined (NaN) reaches any gradient.
+    t = {k: _zero_where_missing(batch[k].float(), valid) for k in ("points", "visibility", "motion", "normals")}
+    t["uv"] = _zero_where_missing(batch["uv"].float(), uv_valid)
+    target_points = t["points"]
+
+    l3d = point_loss(p["points"], target_points, valid)
+    confidence = p["confidence"]
+    log_conf = torch.log(confidence)
+    if config.confidence_weighting:
+        weighted_3d = masked_mean(confidence * l3d, valid)
+        point_term = config.weight_3d * weighted_3d - config.weight_confidence * masked_mean(log_conf, valid)
+    else:
+        weighted_3d = masked_mean(l3d, valid)
+        point_term = config.weight_3d * weighted_3d
+
+    l2d = masked_mean((p["uv"] - t["uv"]).abs().sum(-1), uv_valid)
+    lvis = masked_mean(F.binary_cross_entropy_with_logits(p["visibility_logit"], t["visibility"],
+                                                          reduction="none"), valid)
+    pred_motion, target_motion = p["motion"], t["motion"]
+    if config.normalise_motion:
+        pred_motion = pred_motion / mean_depth(p["points"], valid).detach()[:, None, None]
+        target_motion = target_motion / mean_depth(target_points, valid)[:, None, None]
+    lmotion = masked_mean((pred_motion - target_motion).abs().sum(-1), valid)
+    lnormal = masked_mean(1.0 - F.cosine_similarity(p["normals"], t["normals"], dim=-1, eps=1e-6), valid)
+
+    total = (point_term + config.weight_2d * l2d + config.weight_visibility * lvis
+             + config.weight_motion * lmotion + config.weight_normal * lnormal)
+    terms = {
+        "3d": masked_mean(l3d, valid),
+        "3d_confident": weighted_3d if config.confidence_weighting else masked_mean(confidence * l3d, valid),
+        "confidence": -masked_mean(log_conf, valid),
+        "2d": l2d,
+        "visibility": lvis,
+        "motion": lmotion,
+        "normal": lnormal,
+        "confidence_mean": masked_mean(confidence, valid),
+        "valid_fraction": valid.float().mean(),
+        "uv_fraction": uv_valid.float().mean(),
+        "total": total,
+    }
+    return total, {k: v.detach() for k, v in terms.items()}
+
+
+def _zero_where_missing(target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """``target`` (B, N, ...) with the entries of queries outside ``mask`` (B, N) set to 0."""
+    shape = mask.shape + (1,) * (target.ndim - mask.ndim)
+    return torch.where(mask.reshape(shape), target, torch.zeros_like(target))

@@ -1,0 +1,202 @@
+"""The paper's losses: hand-computed values, scale invariance, masks, finite gradients."""
+
+import math
+
+import pytest
+import torch
+
+from d4rt.training import LossConfig, d4rt_loss, log_compress, mean_depth, point_loss
+
+LOG2 = math.log(2.0)
+
+
+def perfect(batch):
+    """Predictions equal to the targets (every term 0 except BCE and the confidence terms)."""
+    n = batch["points"].shape[1]
+    return {
+        "points": batch["points"].clone(),
+        "uv": batch["uv"].clone(),
+        "visibility_logit": torch.full((1, n), 30.0) * (2 * batch["visibility"] - 1),  # BCE ~ 1e-13
+        "motion": batch["motion"].clone(),
+        "normals": batch["normals"].clone(),
+        "confidence": torch.ones(1, n),
+    }
+
+
+def two_query_batch():
+    return {
+        "points": torch.tensor([[[0.0, 0.0, 4.0], [0.0, 0.0, 4.0]]]),
+        "uv": torch.tensor([[[0.25, 1.0], [0.5, 0.5]]]),
+        "visibility": torch.tensor([[1.0, 0.0]]),
+        "motion": torch.tensor([[[2.0, 0.0, 0.0], [0.0, 0.0, 0.0]]]),
+        "normals": torch.tensor([[[0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]]),
+        "valid": torch.tensor([[True, True]]),
+        "uv_valid": torch.tensor([[True, True]]),
+    }
+
+
+def test_log_compress_and_mean_depth_by_hand():
+    torch.testing.assert_close(log_compress(torch.tensor([-3.0, 0.0, 1.0])), torch.tensor([-math.log(4.0), 0.0, LOG2]))
+    points = torch.tensor([[[5.0, 1.0, 2.0], [0.0, 0.0, -4.0], [9.0, 9.0, 100.0]]])
+    # |z| over the valid queries: (2 + 4) / 2; the third is masked out.
+    torch.testing.assert_close(mean_depth(points, torch.tensor([[True, True, False]])), torch.tensor([3.0]))
+
+
+def test_point_loss_by_hand():
+    # pred: mean |z| = 2 -> (0,0,1), (1,0,1); target: mean |z| = 4 -> (0,0,1), (0,0,1).
+    pred = torch.tensor([[[0.0, 0.0, 2.0], [2.0, 0.0, 2.0]]])
+    target = torch.tensor([[[0.0, 0.0, 4.0], [0.0, 0.0, 4.0]]])
+    l3d = point_loss(pred, target, torch.ones(1, 2, dtype=torch.bool))
+    torch.testing.assert_close(l3d, torch.tensor([[0.0, LOG2]]))  # |log(1 + 1) - log(1 + 0)| in x only
+
+
+def test_every_term_by_hand():
+    batch = two_query_batch()
+    pred = perfect(batch)
+    pred["points"] = torch.tensor([[[0.0, 0.0, 2.0], [2.0, 0.0, 2.0]]])  # L3D per query: 0, log 2
+    pred["confidence"] = torch.tensor([[1.0, 2.0]])
+    pred["uv"] = torch.tensor([[[0.5, 0.5], [0.5, 0.5]]])  # L1 per query: 0.25 + 0.5, 0
+    pred["visibility_logit"] = torch.tensor([[0.0, 0.0]])  # BCE: log 2 each
+    pred["motion"] = torch.tensor([[[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]])  # /2 vs target /4: 0, then 1/2
+    pred["normals"] = torch.tensor([[[0.0, 0.0, -1.0], [0.0, 0.0, -1.0]]])  # 1 - cos: 1, 0
+    total, terms = d4rt_loss(pred, batch)
+    expected = {"3d": LOG2 / 2, "3d_confident": (0 + 2 * LOG2) / 2, "confidence": -LOG2 / 2, "2d": 0.75 / 2,
+                "visibility": LOG2, "motion": 0.5 / 2, "normal": 0.5, "confidence_mean": 1.5}
+    for key, value in expected.items():
+        assert terms[key].item() == pytest.approx(value, rel=1e-6), key
+    paper = (1.0 * LOG2 - 0.2 * LOG2 / 2 + 0.1 * 0.375 + 0.1 * LOG2 + 0.1 * 0.25 + 0.5 * 0.5)
+    assert total.item() == pytest.approx(paper, rel=1e-6)
+    assert terms["total"].item() == pytest.approx(paper, rel=1e-6)
+
+
+def test_weights_and_confidence_switch():
+    batch = two_query_batch()
+    pred = perfect(batch)
+    pred["points"] = torch.tensor([[[0.0, 0.0, 2.0], [2.0, 0.0, 2.0]]])
+    pred["confidence"] = torch.tensor([[1.0, 2.0]])
+    plain, _ = d4rt_loss(pred, batch, LossConfig(confidence_weighting=False, weight_visibility=0.0, weight_motion=0.0))
+    assert plain.item() == pytest.approx(LOG2 / 2, rel=1e-6)  # plain L3D: confidence ignored
+    doubled, _ = d4rt_loss(pred, batch, LossConfig(weight_3d=2.0, weight_visibility=0.0, weight_motion=0.0))
+    assert doubled.item() == pytest.approx(2 * LOG2 - 0.2 * LOG2 / 2, rel=1e-6)
+
+
+@pytest.mark.parametrize("scale", [1e-3, 0.37, 7.0, 1e4])
+def test_l3d_is_invariant_to_scaling_prediction_or_target(scale):
+    g = torch.Generator().manual_seed(0)
+    pred = torch.randn(2, 50, 3, generator=g) + torch.tensor([0.0, 0.0, 3.0])
+    target = torch.randn(2, 50, 3, generator=g) * 2 + torch.tensor([0.0, 0.0, 8.0])
+    mask = torch.rand(2, 50, generator=g) > 0.2
+    base = point_loss(pred, target, mask)
+    torch.testing.assert_close(point_loss(pred * scale, target, mask), base, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(point_loss(pred, target * scale, mask), base, rtol=1e-5, atol=1e-6)
+    # Per clip: scaling one clip of the batch does not change the other's loss either.
+    per_clip = torch.tensor([scale, 1.0])[:, None, None]
+    torch.testing.assert_close(point_loss(pred * per_clip, target, mask), base, rtol=1e-5, atol=1e-6)
+
+
+def test_masks_exclude_missing_ground_truth():
+    """Anything under a False mask, even NaN targets or absurd predictions, changes neither loss nor gradient."""
+    batch = two_query_batch()
+    pred = perfect(batch)
+    pred["confidence"] = torch.tensor([[1.0, 2.0]])
+    reference, ref_terms = d4rt_loss(pred, batch)
+
+    # A third query without any ground truth: NaN targets, wild predictions.
+    batch3 = {k: torch.cat([v, v[:, :1]], 1) for k, v in batch.items()}
+    batch3["valid"][0, 2] = batch3["uv_valid"][0, 2] = False
+    for key in ("points", "uv", "visibility", "motion", "normals"):
+        batch3[key][0, 2] = float("nan")
+    pred3 = {k: torch.cat([v, v[:, :1]], 1) for k, v in pred.items()}
+    pred3["points"][0, 2] = torch.tensor([1e6, -1e6, 1e6])
+    pred3["uv"][0, 2] = 50.0
+    pred3["visibility_logit"][0, 2] = -40.0
+    pred3 = {k: v.requires_grad_() for k, v in pred3.items()}
+    total, terms = d4rt_loss(pred3, batch3)
+    assert total.item() == pytest.approx(reference.item(), rel=1e-6)
+    for key in ("3d", "3d_confident", "2d", "visibility", "motion", "normal", "confidence"):
+        assert terms[key].item() == pytest.approx(ref_terms[key].item(), rel=1e-6, abs=1e-12), key
+    total.backward()
+    for key, tensor in pred3.items():
+        assert torch.isfinite(tensor.grad).all(), key
+        assert (tensor.grad[0, 2] == 0).all(), key
+
+
+def test_behind_camera_point_supervises_visibility_but_not_uv():
+    """A point behind camera t_tgt: valid (it exists) but uv_valid False. Its visibility target 0 is
+    ground truth; its uv is undefined."""
+    batch = two_query_batch()
+    batch["uv_valid"][0, 1] = False
+    batch["visibility"][0, 1] = 0.0
+    pred = perfect(batch)
+    _, base = d4rt_loss(pred, batch)
+    moved_uv = {**pred, "uv": pred["uv"].clone()}
+    moved_uv["uv"][0, 1] = torch.tensor([3.0, -2.0])
+    assert d4rt_loss(moved_uv, batch)[1]["2d"].item() == pytest.approx(base["2d"].item(), abs=1e-12)
+    wrong_vis = {**pred, "visibility_logit": pred["visibility_logit"].clone()}
+    wrong_vis["visibility_logit"][0, 1] = 5.0  # says "visible"
+    assert d4rt_loss(wrong_vis, batch)[1]["visibility"].item() > base["visibility"].item() + 1.0
+
+
+def test_empty_masks_give_zero_terms_still_attached_to_the_graph():
+    batch = two_query_batch()
+    batch["valid"][:] = False
+    batch["uv_valid"][:] = False
+    pred = {k: v.clone().requires_grad_() for k, v in perfect(batch).items()}
+    total, terms = d4rt_loss(pred, batch)
+    assert total.item() == 0.0 and terms["valid_fraction"].item() == 0.0
+    total.backward()  # DDP needs every head in the graph even when a batch has no ground truth
+    assert all(torch.equal(p.grad, torch.zeros_like(p)) for p in pred.values())
+
+
+@pytest.mark.parametrize("depth", [1e-6, 1e-3, 1.0, 1e3, 1e6, "mixed"])
+def test_gradients_are_finite_for_tiny_and_huge_depths(depth):
+    g = torch.Generator().manual_seed(1)
+    n = 64
+    if depth == "mixed":
+        z = torch.where(torch.rand(1, n, generator=g) > 0.5, 1e-5, 1e5)
+    else:
+        z = torch.full((1, n), float(depth))
+    xy = torch.randn(1, n, 2, generator=g) * z[..., None]
+    target = torch.cat([xy, z[..., None]], -1)
+    batch = {"points": target, "uv": torch.rand(1, n, 2, generator=g), "visibility": torch.ones(1, n),
+             "motion": target * 0.1, "normals": torch.nn.functional.normalize(torch.randn(1, n, 3, generator=g), dim=-1),
+             "valid": torch.ones(1, n, dtype=torch.bool), "uv_valid": torch.ones(1, n, dtype=torch.bool)}
+    for scale in (1e-4, 1.0, 1e4):  # predictions far smaller or larger than the targets
+        pred = {"points": torch.randn(1, n, 3, generator=g) * scale, "uv": torch.rand(1, n, 2, generator=g),
+                "visibility_logit": torch.randn(1, n, generator=g), "motion": torch.randn(1, n, 3, generator=g) * scale,
+                "normals": torch.nn.functional.normalize(torch.randn(1, n, 3, generator=g), dim=-1),
+                "confidence": torch.rand(1, n, generator=g) + 1e-3}
+        pred = {k: v.requires_grad_() for k, v in pred.items()}
+        total, terms = d4rt_loss(pred, batch)
+        total.backward()
+        assert torch.isfinite(total) and all(torch.isfinite(v) for v in terms.values())
+        for key, tensor in pred.items():
+            assert torch.isfinite(tensor.grad).all(), (key, scale)
+
+
+def test_all_zero_prediction_keeps_the_loss_finite():
+    batch = two_query_batch()
+    pred = {k: torch.zeros_like(v).requires_grad_() for k, v in perfect(batch).items()}
+    pred["confidence"] = torch.ones(1, 2, requires_grad=True)
+    total, _ = d4rt_loss(pred, batch)
+    total.backward()
+    assert torch.isfinite(total) and all(torch.isfinite(p.grad).all() for p in pred.values())
+
+
+def test_bf16_predictions_are_computed_in_float32():
+    batch = two_query_batch()
+    pred = perfect(batch)
+    pred["points"] = torch.tensor([[[0.0, 0.0, 2.0], [2.0, 0.0, 2.0]]])
+    low = {k: v.to(torch.bfloat16) for k, v in pred.items()}
+    total, _ = d4rt_loss(low, batch)
+    assert total.dtype == torch.float32
+    assert total.item() == pytest.approx(d4rt_loss(pred, batch)[0].item(), rel=1e-2)
+
+
+def test_loss_config_rejects_bad_weights():
+    from d4rt.errors import UserError
+
+    with pytest.raises(UserError, match="weight_2d"):
+        LossConfig(weight_2d=-1.0).validate()
+    with pytest.raises(UserError, match="weight_confidence"):
+        LossConfig(weight_confidence=0.0).validate()
