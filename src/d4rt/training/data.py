@@ -1,0 +1,85 @@
+"""The training sample stream: which clip every rank trains on at every step, resumable exactly.
+
+All ranks read one global stream of samples. Global sample ``g`` is item ``perm_e[g mod L]`` of the
+dataset in epoch ``e = g div L`` (L = dataset length, ``perm_e`` a permutation drawn from
+``(seed, e)``). A training step consumes ``G = batch_size * grad_accum * world_size`` consecutive samples;
+micro-step ``m`` of rank ``r`` takes ``batch_size`` of them at offset ``(m * world_size + r) * batch_size``.
+Since every sample is a deterministic function of (seed, epoch, index) (see
+:class:`d4rt.data.ClipQueryDataset`), the data position is just the index of the next global sample,
+which checkpoints store: resuming continues with exactly the samples an uninterrupted run would see.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Iterator
+
+import numpy as np
+import torch
+
+from d4rt.data import ClipQueryDataset
+
+
+class EpochIndexedDataset(torch.utils.data.Dataset):
+    """``dataset[(epoch, index)]``: the sample ``index`` of ``epoch`` (works in any worker process,
+    whose copy of the dataset gets the epoch set per item)."""
+
+    def __init__(self, dataset: ClipQueryDataset):
+        self.dataset = dataset
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def __getitem__(self, key: tuple[int, int]) -> dict:
+        epoch, index = key
+        self.dataset.set_epoch(epoch)
+        return self.dataset[index]
+
+
+class SampleStream(torch.utils.data.Sampler):
+    """Infinite batch sampler of one rank: lists of ``(epoch, index)`` keys, one list per micro-step,
+    starting at global sample ``start``."""
+
+    def __init__(self, length: int, seed: int, start: int, batch_size: int, grad_accum: int, rank: int,
+                 world_size: int):
+        self.length, self.seed, self.start = length, seed, start
+        self.batch_size, self.grad_accum = batch_size, grad_accum
+        self.rank, self.world_size = rank, world_size
+        self._order: tuple[int, np.ndarray] | None = None
+
+    @property
+    def samples_per_step(self) -> int:
+        return self.batch_size * self.grad_accum * self.world_size
+
+    def key(self, g: int) -> tuple[int, int]:
+        """(epoch, dataset index) of global sample ``g``."""
+        epoch, position = divmod(g, self.length)
+        if self._order is None or self._order[0] != epoch:
+            self._order = (epoch, np.random.default_rng([self.seed, epoch]).permutation(self.length))
+        return epoch, int(self._order[1][position])
+
+    def __iter__(self) -> Iterator[list[tuple[int, int]]]:
+        step_start = self.start
+        while True:
+            for micro in range(self.grad_accum):
+                first = step_start + (micro * self.world_size + self.rank) * self.batch_size
+                yield [self.key(g) for g in range(first, first + self.batch_size)]
+            step_start += self.samples_per_step
+
+
+def seed_worker(worker_id: int) -> None:
+    """Seed Python's and NumPy's global generators in a loader worker from its torch seed (which the
+    loader derives from the run's seed, rank and worker). The dataset itself uses its own generators."""
+    seed = torch.initial_seed() % 2**32
+    random.seed(seed)
+    np.random.seed(seed)
+
+
+def training_loader(dataset: ClipQueryDataset, stream: SampleStream, workers: int, seed: int, rank: int,
+                    pin_memory: bool) -> torch.utils.data.DataLoader:
+    """A DataLoader over ``stream`` with ``workers`` processes; batches are dicts of stacked tensors."""
+    generator = torch.Generator().manual_seed(seed * 1_000_003 + rank)
+    return torch.utils.data.DataLoader(
+        EpochIndexedDataset(dataset), batch_sampler=stream, num_workers=workers, pin_memory=pin_memory,
+        worker_init_fn=seed_worker, generator=generator, persistent_workers=False,
+        prefetch_factor=2 if workers else None)

@@ -1,0 +1,305 @@
+"""The training loop: the same code on one CPU process, one GPU, or many under torchrun (DDP / FSDP).
+
+One optimiser step = ``run.grad_accum`` micro-batches of ``data.batch_size`` clips on every rank. Per
+step: set the scheduled learning rate, forward + loss + backward per micro-batch (bf16 autocast on GPU;
+gradient sync only on the last micro-batch), clip the gradient norm, AdamW step. Every
+``run.log_every`` steps the loss terms (averaged over ranks and micro-batches), learning rate, gradient
+norm and throughput are logged; every ``validation.every`` steps the model is validated on held-out
+clips; every ``run.checkpoint_every`` steps (and at the end) a checkpoint is written atomically and its
+weights are published as ``<run>/model.safetensors`` + ``<run>/config.json``.
+
+Run directory::
+
+    <run>/model.safetensors, config.json   latest weights (D4RT.from_pretrained(<run>))
+    <run>/train_config.yaml                 the resolved training config
+    <run>/checkpoints/step-XXXXXXXX/        resumable checkpoints (see d4rt.training.checkpoint)
+    <run>/metrics.jsonl, tensorboard/       logs
+
+``train(config, out, resume=True)`` continues from the newest complete checkpoint exactly: the weights,
+optimiser state, step, data position and random-generator states are restored, so a run that is killed
+and resumed ends with the same weights as one that was not (bitwise on CPU with fixed seeds).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import torch.distributed as dist
+
+from d4rt.config import D4RTConfig
+from d4rt.data import ClipQueryDataset
+from d4rt.errors import UserError
+from d4rt.model import D4RT
+from d4rt.model.weights import CONFIG_NAME, WEIGHTS_NAME, check_state_dict
+from d4rt.training import checkpoint as ckpt
+from d4rt.training.config import TrainConfig
+from d4rt.training.data import SampleStream, training_loader
+from d4rt.training.distributed import (
+    DistributedContext,
+    gradient_sync,
+    load_model_state,
+    load_optimizer_state,
+    model_state,
+    optimizer_state,
+    resolve_strategy,
+    unwrap,
+    wrap_model,
+)
+from d4rt.training.logger import TrainLogger
+from d4rt.training.losses import d4rt_loss
+from d4rt.training.optimization import build_optimizer, learning_rate, set_learning_rate
+from d4rt.training.randomness import capture_rng_state, restore_rng_state, seed_rank
+from d4rt.training.validation import Validator
+
+# Config fields that may change when a run is resumed: they do not alter the training trajectory
+# (run.max_steps only extends or shortens it).
+RESUMABLE_CHANGES = ("run.max_steps", "run.log_every", "run.checkpoint_every", "run.keep_checkpoints",
+                     "run.tensorboard", "run.progress", "run.device", "data.workers", "validation.")
+
+
+@dataclass
+class TrainResult:
+    """What a finished run returns: the run directory, steps done, the last logged scalars."""
+
+    out: Path
+    step: int
+    metrics: dict[str, float]
+
+
+def train(config: TrainConfig, out: str | Path, resume: bool = False) -> TrainResult:
+    """Train ``config`` into the run directory ``out`` (see the module docstring).
+
+    Joins the process group when launched by torchrun. ``resume=True`` continues from the newest
+    complete checkpoint in ``out`` (or starts afresh when there is none); without it, a run directory
+    that already holds checkpoints is refused.
+    """
+    config.validate()
+    context = DistributedContext.from_environment(config.run.device)
+    trainer = Trainer(config, out, context)
+    try:
+        return trainer.fit(resume)
+    finally:
+        trainer.model = trainer.optimizer = None  # a DDP model must go before its process group
+        context.close()
+
+
+class Trainer:
+    """One training run in one process of ``context``; after :meth:`fit`, ``model`` (as wrapped for the
+    strategy) and ``optimizer`` hold the final state."""
+
+    def __init__(self, config: TrainConfig, out: str | Path, context: DistributedContext):
+        self.model: torch.nn.Module | None = None
+        self.optimizer: torch.optim.Optimizer | None = None
+        self.config = config
+        self.model_config: D4RTConfig = config.validate()
+        self.out = Path(out)
+        self.context = context
+        self.strategy = resolve_strategy(config.run.strategy, context)
+        bf16 = config.run.precision == "bf16" or (config.run.precision == "auto" and context.device.type == "cuda")
+        self.autocast = torch.autocast(context.device.type, dtype=torch.bfloat16, enabled=bf16)
+
+    # ------------------------------------------------------------------------------------------ set-up
+    def _build_model(self) -> torch.nn.Module:
+        spec, run = self.config.model, self.config.run
+        torch.manual_seed(run.seed)  # the same initial weights on every rank
+        model = D4RT(self.model_config)
+        if spec.init_from is not None:
+            pretrained = D4RT.from_pretrained(spec.init_from)
+            if pretrained.config != self.model_config:
+                raise UserError(f"model.init_from {spec.init_from} has a different model config than model.preset "
+                                f"{spec.preset!r} with its overrides")
+            model.load_state_dict(pretrained.state_dict(), strict=True)
+        if spec.videomae is not None:
+            from d4rt.model.videomae import load_videomae_v2
+
+            load_videomae_v2(model, spec.videomae)
+        return wrap_model(model.train(), self.strategy, self.context)
+
+    def _check_run_directory(self, resume: bool) -> Path | None:
+        """Rank 0 decides whether to resume and from where; every rank learns the step."""
+        root = self.out / "checkpoints"
+        latest = None
+        if self.context.is_main:
+            ckpt.remove_temporaries(root)
+            latest = ckpt.latest_checkpoint(root)
+            if latest is not None and not resume:
+                raise UserError(f"{self.out} already holds checkpoints (newest {latest.name}); pass --resume to "
+                                f"continue that run or choose another --out")
+        return latest
+
+    def _restore(self, model, optimizer, latest: Path | None) -> dict:
+        """Load the checkpoint ``latest`` (read on rank 0, broadcast) -> trainer state (``{}`` if fresh)."""
+        context = self.context
+        found = context.broadcast_flag(latest is not None)
+        if not found:
+            return {}
+        model_tensors, optim_state, state = ({}, {}, None)
+        if context.is_main:
+            model_tensors, optim_state, state = ckpt.read_checkpoint(latest)
+            _check_resumable(state["config"], self.config.to_dict(), latest)
+            check_state_dict(unwrap(model), model_tensors, f"checkpoint {latest}")
+        if context.distributed:
+            box = [state]
+            dist.broadcast_object_list(box, src=0)
+            state = box[0]
+        load_model_state(model, model_tensors, context)
+        load_optimizer_state(model, optimizer, optim_state, context)
+        ranks = state["rng"]
+        if len(ranks) == context.world_size:
+            restore_rng_state(ranks[context.rank], context.device)
+        return state
+
+    # ------------------------------------------------------------------------------------------ loop
+    def fit(self, resume: bool = False) -> TrainResult:
+        cfg, context = self.config, self.context
+        latest = self._check_run_directory(resume)
+        model = self.model = self._build_model()
+        optimizer = self.optimizer = build_optimizer(model, cfg.optim)
+        seed_rank(cfg.run.seed, context.rank)
+        state = self._restore(model, optimizer, latest)
+        step = int(state.get("step", 0))
+        next_sample = int(state.get("next_sample", 0))
+        skipped = int(state.get("skipped_steps", 0))
+        if context.is_main:
+            self.out.mkdir(parents=True, exist_ok=True)
+            (self.out / "train_config.yaml").write_text(cfg.to_yaml())
+            _truncate_metrics(self.out / "metrics.jsonl", step)
+
+        data, run = cfg.data, cfg.run
+        dataset = ClipQueryDataset(data.dataset)
+        stream = SampleStream(len(dataset), run.seed, next_sample, data.batch_size, run.grad_accum, context.rank,
+                              context.world_size)
+        loader = iter(training_loader(dataset, stream, data.workers, run.seed, context.rank,
+                                      pin_memory=context.device.type == "cuda"))
+        validator = Validator(cfg.validation, cfg.loss, data.dataset.sampler) if cfg.validation.every else None
+        logger = TrainLogger(self.out, context.is_main, run.max_steps, step, run.tensorboard, run.progress)
+        if latest is not None and context.is_main:
+            logger.message(f"resumed from {latest} at step {step}")
+
+        totals: dict[str, torch.Tensor] = {}
+        last: dict[str, float] = {}
+        window_start, window_steps = time.perf_counter(), 0
+        try:
+            while step < run.max_steps:
+                lr = learning_rate(step, cfg.optim, run.max_steps)
+                set_learning_rate(optimizer, lr)
+                for micro in range(run.grad_accum):
+                    batch = {k: v.to(context.device, non_blocking=True) for k, v in next(loader).items()}
+                    with gradient_sync(model, micro == run.grad_accum - 1):
+                        with self.autocast:
+                            out = model(batch["video"], batch["queries"], batch["aspect_ratio"])
+                        loss, terms = d4rt_loss(out, batch, cfg.loss)
+                        (loss / run.grad_accum).backward()
+                    for key, value in terms.items():
+                        totals[key] = totals.get(key, 0.0) + value / run.grad_accum
+                norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip)
+                norm = norm.full_tensor() if hasattr(norm, "full_tensor") else norm  # FSDP: a DTensor
+                if torch.isfinite(norm):
+                    optimizer.step()
+                else:  # the same decision on every rank: the norm is of the synchronised gradients
+                    skipped += 1
+                    logger.message(f"step {step}: non-finite gradient norm, update skipped")
+                optimizer.zero_grad(set_to_none=True)
+                step += 1
+                next_sample += stream.samples_per_step
+                window_steps += 1
+                totals["grad_norm"] = totals.get("grad_norm", 0.0) + norm.detach().float()
+
+                if step % run.log_every == 0 or step == run.max_steps:
+                    averaged = context.mean(totals)
+                    elapsed = time.perf_counter() - window_start
+                    clips_per_s = window_steps * stream.samples_per_step / elapsed
+                    last = {f"loss/{k}": v / window_steps for k, v in averaged.items() if k != "grad_norm"}
+                    last.update({"grad_norm": averaged["grad_norm"] / window_steps, "lr": lr,
+                                 "throughput/clips_per_s": clips_per_s,
+                                 "throughput/queries_per_s": clips_per_s * data.dataset.sampler.num_queries,
+                                 "skipped_steps": float(skipped)})
+                    logger.log(step, last)
+                    totals, window_start, window_steps = {}, time.perf_counter(), 0
+                paused = time.perf_counter()  # validation and checkpoints do not count as training time
+                if validator is not None and (step % cfg.validation.every == 0 or step == run.max_steps):
+                    scalars = self._validate(model, validator)
+                    logger.log(step, scalars)
+                    last.update(scalars)
+                if step % run.checkpoint_every == 0 or step == run.max_steps:
+                    self._save(model, optimizer, step, next_sample, skipped)
+                window_start += time.perf_counter() - paused
+                logger.advance()
+        finally:
+            logger.close()
+        return TrainResult(self.out, step, last)
+
+    # ------------------------------------------------------------------------------------------ outputs
+    def _validate(self, model, validator: Validator) -> dict[str, float]:
+        """Validation on rank 0 with an unsharded model (FSDP: gathered into a plain copy)."""
+        scalars: dict[str, float] = {}
+        if self.strategy == "fsdp":
+            full = model_state(model)  # collective
+            if self.context.is_main:
+                plain = D4RT(self.model_config).to(self.context.device)
+                plain.load_state_dict(full, strict=True)
+                scalars = validator.run(plain, self.autocast)
+                del plain
+        elif self.context.is_main:
+            scalars = validator.run(unwrap(model), self.autocast)
+        self.context.barrier()
+        return scalars
+
+    def _save(self, model, optimizer, step: int, next_sample: int, skipped: int) -> None:
+        context = self.context
+        weights, optim = model_state(model), optimizer_state(model, optimizer)  # collectives
+        rng = capture_rng_state(context.device)
+        if context.distributed:
+            ranks = [None] * context.world_size
+            dist.all_gather_object(ranks, rng)
+        else:
+            ranks = [rng]
+        if context.is_main:
+            trainer_state = {"step": step, "next_sample": next_sample, "skipped_steps": skipped,
+                             "world_size": context.world_size, "strategy": self.strategy,
+                             "lr": learning_rate(step - 1, self.config.optim, self.config.run.max_steps),
+                             "rng": ranks, "config": self.config.to_dict()}
+            root = self.out / "checkpoints"
+            path = ckpt.write_checkpoint(root, step, weights, self.model_config, optim, trainer_state)
+            _publish_weights(path, self.out)
+            ckpt.prune_checkpoints(root, self.config.run.keep_checkpoints)
+        context.barrier()
+
+
+def _publish_weights(checkpoint: Path, out: Path) -> None:
+    """Make ``out/model.safetensors`` and ``out/config.json`` the checkpoint's, each replaced atomically
+    (hard links: checkpoint files are never modified, only deleted)."""
+    for name in (WEIGHTS_NAME, CONFIG_NAME):
+        temp = out / f".{name}.tmp-{os.getpid()}"
+        temp.unlink(missing_ok=True)
+        try:
+            os.link(checkpoint / name, temp)
+        except OSError:  # file systems without hard links
+            ckpt.write_file_atomically(temp, (checkpoint / name).read_bytes())
+        os.replace(temp, out / name)
+
+
+def _check_resumable(saved: dict, current: dict, path: Path) -> None:
+    def flat(d: dict, prefix: str = "") -> dict:
+        items = {}
+        for k, v in d.items():
+            items.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) and k != "overrides" else {f"{prefix}{k}": v})
+        return items
+    a, b = flat(saved), flat(current)
+    changed = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k) and not k.startswith(RESUMABLE_CHANGES))
+    if changed:
+        raise UserError(f"cannot resume {path}: the config changed in {', '.join(changed)} "
+                        f"(only {', '.join(RESUMABLE_CHANGES)} may change)")
+
+
+def _truncate_metrics(path: Path, step: int) -> None:
+    """Drop records after ``step`` (logged by a run that was killed before its next checkpoint)."""
+    if not path.is_file():
+        return
+    kept = [line for line in path.read_text().splitlines() if line and json.loads(line).get("step", 0) <= step]
+    ckpt.write_file_atomically(path, "".join(line + "\n" for line in kept).encode())

@@ -1,0 +1,111 @@
+"""Kill and resume: a run stopped with SIGKILL and resumed ends bitwise equal to an uninterrupted run;
+a checkpoint half-written at the kill is never picked up."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from safetensors.torch import load_file
+
+from d4rt.training import latest_checkpoint
+from training_helpers import fast_config, run_d4rt, subprocess_env, write_config
+
+
+def same_tensors(a: Path, b: Path) -> bool:
+    x, y = load_file(str(a)), load_file(str(b))
+    return x.keys() == y.keys() and all(x[k].dtype == y[k].dtype and x[k].equal(y[k]) for k in x)
+
+
+def test_sigkill_mid_run_then_resume_is_bitwise_equal_to_an_uninterrupted_run(tmp_path, clip_dir):
+    config = write_config(tmp_path / "run.yaml", fast_config(clip_dir, run={"max_steps": 12, "checkpoint_every": 2,
+                                                                           "log_every": 1}))
+    reference = tmp_path / "reference"
+    done = run_d4rt("train", "--config", str(config), "--out", str(reference))
+    assert done.returncode == 0, done.stderr
+
+    killed = tmp_path / "killed"
+    process = subprocess.Popen([sys.executable, "-m", "d4rt", "train", "--config", str(config), "--out", str(killed)],
+                               env=subprocess_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # Kill at the first sign of the writer working on the checkpoint after step 4 (its temporary
+    # directory), or failing that as soon as step 6 is on disk: either way mid-run.
+    root = killed / "checkpoints"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and process.poll() is None:
+        names = [p.name for p in root.iterdir()] if root.is_dir() else []
+        if "step-00000004" in names and any(n.startswith(".step-") or n == "step-00000006" for n in names):
+            break
+        time.sleep(0.002)
+    process.send_signal(signal.SIGKILL)
+    assert process.wait(timeout=30) == -signal.SIGKILL, "the run finished before it could be killed"
+    survivor = latest_checkpoint(root)
+    assert survivor is not None and survivor.name in ("step-00000004", "step-00000006")
+    assert not (killed / "checkpoints" / "step-00000012").exists()
+
+    resumed = run_d4rt("train", "--config", str(config), "--out", str(killed), "--resume")
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"resumed from {survivor}" in resumed.stdout + resumed.stderr
+    assert not any(p.name.startswith(".step-") for p in root.iterdir())  # leftovers removed
+    assert same_tensors(reference / "model.safetensors", killed / "model.safetensors")
+    for name in ("model.safetensors", "optimizer.safetensors"):
+        assert same_tensors(reference / "checkpoints/step-00000012" / name, killed / "checkpoints/step-00000012" / name)
+    # The log holds every step exactly once, and the same numbers as the uninterrupted run.
+    logged = [json.loads(line) for line in (killed / "metrics.jsonl").read_text().splitlines()]
+    expected = [json.loads(line) for line in (reference / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in logged] == list(range(1, 13))
+    assert [r["loss/total"] for r in logged] == [r["loss/total"] for r in expected]
+
+
+_KILL_MID_WRITE = """
+import os, signal, sys
+import safetensors.torch
+from d4rt.config import D4RTConfig
+from d4rt.model import D4RT
+from d4rt.training import checkpoint
+
+model = D4RT(D4RTConfig.preset("tiny", max_frames=4))
+state = {"state": {}, "param_groups": [{"lr": 0.1, "params": list(model.state_dict())}]}
+checkpoint.write_checkpoint(sys.argv[1], 2, model.state_dict(), model.config, state, {"note": "complete"})
+real_save = safetensors.torch.save_file
+
+def save_half_then_die(tensors, path, metadata=None):
+    real_save(tensors, path, metadata=metadata)
+    with open(path, "r+b") as fh:
+        fh.truncate(os.path.getsize(path) // 2)
+    os.kill(os.getpid(), signal.SIGKILL)
+
+checkpoint.save_file = save_half_then_die  # the optimizer file of step 4 is cut short, then SIGKILL
+checkpoint.write_checkpoint(sys.argv[1], 4, model.state_dict(), model.config, state, {"note": "never"})
+"""
+
+
+def test_a_checkpoint_half_written_at_a_kill_is_never_picked_up(tmp_path):
+    root = tmp_path / "checkpoints"
+    killed = subprocess.run([sys.executable, "-c", _KILL_MID_WRITE, str(root)], env=subprocess_env(),
+                            capture_output=True, text=True, timeout=120)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    leftovers = [p.name for p in root.iterdir()]
+    assert "step-00000002" in leftovers and "step-00000004" not in leftovers
+    assert any(name.startswith(".step-00000004.tmp-") for name in leftovers)
+    assert latest_checkpoint(root).name == "step-00000002"
+
+
+def test_a_checkpoint_with_a_truncated_file_is_skipped(tmp_path):
+    import torch
+
+    from d4rt.config import D4RTConfig
+    from d4rt.model import D4RT
+    from d4rt.training.checkpoint import is_complete, write_checkpoint
+
+    model = D4RT(D4RTConfig.preset("tiny", max_frames=4))
+    state = {"state": {"x": {"step": torch.tensor(1.0)}}, "param_groups": []}
+    for step in (2, 4):
+        write_checkpoint(tmp_path, step, model.state_dict(), model.config, state, {})
+    weights = tmp_path / "step-00000004" / "model.safetensors"
+    weights.write_bytes(weights.read_bytes()[:-10])  # e.g. a disk that lost the tail after a crash
+    assert not is_complete(tmp_path / "step-00000004")
+    assert latest_checkpoint(tmp_path).name == "step-00000002"

@@ -1,0 +1,113 @@
+"""The trainer's parts: learning-rate schedule, weight-decay groups, sample stream, checkpoint files,
+random-generator states."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import numpy as np
+import pytest
+import torch
+
+from d4rt.config import D4RTConfig
+from d4rt.model import D4RT
+from d4rt.training import OptimConfig, build_optimizer, learning_rate, read_checkpoint, write_checkpoint
+from d4rt.training.data import SampleStream
+from d4rt.training.randomness import capture_rng_state, restore_rng_state, seed_rank
+
+
+def test_paper_schedule_warm_up_then_cosine():
+    paper = OptimConfig()  # 2,500 steps to 1e-4, cosine to 1e-6
+    total = 500_000
+    assert learning_rate(0, paper, total) == pytest.approx(1e-4 / 2500)
+    assert learning_rate(1249, paper, total) == pytest.approx(0.5e-4)
+    assert learning_rate(2499, paper, total) == pytest.approx(1e-4)
+    assert learning_rate(2500, paper, total) == pytest.approx(1e-4)
+    middle = 2500 + (total - 2500) // 2
+    assert learning_rate(middle, paper, total) == pytest.approx((1e-4 + 1e-6) / 2, rel=1e-4)
+    assert learning_rate(total, paper, total) == pytest.approx(1e-6)
+    assert learning_rate(total + 10, paper, total) == pytest.approx(1e-6)
+    after = [learning_rate(s, paper, total) for s in range(2500, total, 997)]
+    assert all(a >= b for a, b in zip(after, after[1:]))
+    short = OptimConfig(warmup_steps=0, decay_steps=100)
+    assert learning_rate(0, short, 10) == pytest.approx(1e-4)
+    assert learning_rate(50, short, 10) == pytest.approx(1e-6 + 0.5 * (1e-4 - 1e-6) * (1 + math.cos(math.pi / 2)))
+
+
+def test_weight_decay_skips_biases_norms_and_position_tables():
+    model = D4RT(D4RTConfig.preset("tiny"))
+    optimizer = build_optimizer(model, OptimConfig())
+    names = {id(p): n for n, p in model.named_parameters()}
+    decayed = {names[id(p)] for p in optimizer.param_groups[0]["params"]}
+    kept = {names[id(p)] for p in optimizer.param_groups[1]["params"]}
+    assert optimizer.param_groups[0]["weight_decay"] == 0.03 and optimizer.param_groups[1]["weight_decay"] == 0.0
+    assert decayed | kept == set(names.values()) and not decayed & kept
+    assert "encoder.blocks.0.attn.proj.weight" in decayed and "query_embedding.time_src.weight" in decayed
+    for name in ("encoder.blocks.0.attn.proj.bias", "encoder.norm.weight", "encoder.pos_embed.time",
+                 "encoder.pos_embed.space", "encoder.blocks.0.attn.q_bias"):
+        assert name in kept, name
+
+
+def test_sample_stream_splits_one_global_order_across_ranks_and_resumes_anywhere():
+    length, batch, accum, world = 7, 2, 3, 2
+
+    def keys(rank, start=0, steps=4, world_size=world, grad_accum=accum):
+        stream = iter(SampleStream(length, 5, start, batch, grad_accum, rank, world_size))
+        return [next(stream) for _ in range(steps * grad_accum)]
+
+    single = keys(0, world_size=1, grad_accum=accum * world)  # one process accumulating all of it
+    per_rank = [keys(r) for r in range(world)]
+    for step in range(4):
+        for micro in range(accum):
+            for rank in range(world):  # rank r's micro-batch m is the single process's (m * world + r)
+                assert per_rank[rank][step * accum + micro] == single[step * accum * world + micro * world + rank]
+    flat = [k for group in single for k in group]
+    for epoch in range(2):  # every epoch visits every clip once, in a fresh order
+        assert sorted(i for e, i in flat[epoch * length:(epoch + 1) * length]) == list(range(length))
+        assert all(e == epoch for e, _ in flat[epoch * length:(epoch + 1) * length])
+    assert [i for _, i in flat[:length]] != [i for _, i in flat[length:2 * length]]
+    # Resuming at step 2 yields exactly what the uninterrupted stream yields from step 2 on.
+    samples_per_step = batch * accum * world
+    assert keys(1, start=2 * samples_per_step, steps=2) == per_rank[1][2 * accum:]
+
+
+def test_checkpoint_round_trip_is_exact_and_loads_as_a_model(tmp_path):
+    torch.manual_seed(0)
+    model = D4RT(D4RTConfig.preset("tiny", max_frames=4))
+    optimizer = build_optimizer(model, OptimConfig(lr=1e-3))
+    video, queries = torch.rand(1, 4, 32, 32, 3), torch.cat([torch.rand(1, 8, 2), torch.zeros(1, 8, 3)], -1)
+    for _ in range(2):
+        out = model(video, queries, torch.ones(1))
+        (out["points"].square().mean() + out["uv"].abs().mean()).backward()
+        optimizer.step()
+        optimizer.zero_grad()
+    from d4rt.training.distributed import optimizer_state
+
+    state = optimizer_state(model, optimizer)
+    path = write_checkpoint(tmp_path, 2, model.state_dict(), model.config, state, {"next_sample": 2, "note": [1, 2]})
+    weights, optim, trainer = read_checkpoint(path)
+    assert trainer["step"] == 2 and trainer["next_sample"] == 2 and trainer["note"] == [1, 2]
+    assert all(torch.equal(weights[k], v) for k, v in model.state_dict().items())
+    assert optim["state"].keys() == state["state"].keys()
+    for name, entries in state["state"].items():
+        for key, value in entries.items():
+            assert torch.equal(optim["state"][name][key], value), (name, key)
+    assert optim["param_groups"] == state["param_groups"]  # betas come back as a tuple
+    restored = D4RT.from_pretrained(path)  # a checkpoint directory is also a model directory
+    assert all(torch.equal(restored.state_dict()[k], v) for k, v in model.state_dict().items())
+
+
+def test_rng_states_round_trip_through_json():
+    import json
+
+    seed_rank(3, 1)
+    state = json.loads(json.dumps(capture_rng_state(torch.device("cpu"))))
+    expected = (random.random(), np.random.rand(), torch.rand(3))
+    seed_rank(99, 0)
+    restore_rng_state(state, torch.device("cpu"))
+    again = (random.random(), np.random.rand(), torch.rand(3))
+    assert expected[:2] == again[:2] and torch.equal(expected[2], again[2])
+    seed_rank(3, 0)
+    other_rank = torch.rand(3)
+    assert not torch.equal(other_rank, expected[2])  # ranks draw different streams
