@@ -172,3 +172,22 @@ def test_encoder_input_is_the_antialiased_bilinear_resize(tiny_model, random_vid
     expected = torch.nn.functional.interpolate(video.permute(0, 3, 1, 2).float() / 255, size=(64, 64),
                                                mode="bilinear", antialias=True).permute(0, 2, 3, 1)
     torch.testing.assert_close(scene.patch_video[0], expected, atol=1e-6, rtol=0)
+
+
+def test_cached_keys_follow_the_autocast_dtype(make_model, random_video, random_queries):
+    # Keys cached under bf16 autocast must not be reused by a float32 query (dtype error or rounded keys),
+    # and float32 keys must not be reused under autocast either: each setting answers as if uncached.
+    model = make_model()
+    scene = model.encode(random_video(4, 24, 32))
+    queries = random_queries(9, 4)
+    float32 = scene.query(queries, cache_kv=False)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        bf16 = scene.query(queries, cache_kv=False)
+    for first in ("bf16", "float32"):
+        scene.clear_cache()
+        for setting in (first, "float32" if first == "bf16" else "bf16", first):
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=setting == "bf16"):
+                out = scene.query(queries)
+            expected = bf16 if setting == "bf16" else float32
+            for key in OUTPUT_KEYS:
+                torch.testing.assert_close(out[key], expected[key], atol=0, rtol=0)

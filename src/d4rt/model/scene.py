@@ -21,6 +21,11 @@ if TYPE_CHECKING:
 OUTPUT_KEYS = ("points", "uv", "visibility", "motion", "normals", "confidence")
 
 
+def autocast_dtype(device: torch.device) -> torch.dtype | None:
+    """The dtype autocast computes in on ``device`` right now, or None when autocast is off there."""
+    return torch.get_autocast_dtype(device.type) if torch.is_autocast_enabled(device.type) else None
+
+
 class EncodedScene:
     """The Global Scene Representation of one clip, with the inputs queries need.
 
@@ -44,18 +49,25 @@ class EncodedScene:
         self.aspect_ratio = width / height
         self.patch_video = patch_video
         self._kv: SceneKV | None = None
+        self._kv_dtype: torch.dtype | None = None
 
     def scene_kv(self, cache: bool = True) -> SceneKV:
-        """Per-decoder-layer keys and values of the scene tokens; computed once when ``cache``."""
+        """Per-decoder-layer keys and values of the scene tokens; computed once when ``cache``.
+
+        The cache belongs to the autocast dtype it was projected under (None outside autocast): keys made
+        under bf16 autocast are bf16, and a later float32 query would otherwise meet them with a dtype
+        error (or, cast up, with answers that differ from an uncached decode).
+        """
         if not cache:
             return self.model.decoder.project_scene(self.tokens)
-        if self._kv is None:
-            self._kv = self.model.decoder.project_scene(self.tokens)
+        dtype = autocast_dtype(self.tokens.device)
+        if self._kv is None or self._kv_dtype != dtype:
+            self._kv, self._kv_dtype = self.model.decoder.project_scene(self.tokens), dtype
         return self._kv
 
     def clear_cache(self) -> None:
         """Drop the cached keys/values (they are rebuilt on the next query)."""
-        self._kv = None
+        self._kv, self._kv_dtype = None, None
 
     @torch.no_grad()
     def query(self, queries: Any, chunk_size: int | None = None, cache_kv: bool | None = None) -> dict[str, torch.Tensor]:
