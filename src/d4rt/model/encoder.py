@@ -38,7 +38,7 @@ class TubeletEmbedding(nn.Module):
         k, p = self.tubelet_frames, self.patch_size
         x = video.reshape(b, t // k, k, h // p, p, w // p, p, c)
         x = x.permute(0, 1, 3, 5, 7, 2, 4, 6)  # (B, T', H', W', C, k, p, p)
-        return self.proj(x.flatten(4))
+        return self.proj(x.flatten(4).to(self.proj.weight.dtype))  # float32 pixels into a bf16 model too
 
 
 class SpaceTimePositions(nn.Module):
