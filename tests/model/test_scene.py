@@ -191,3 +191,19 @@ def test_cached_keys_follow_the_autocast_dtype(make_model, random_video, random_
             expected = bf16 if setting == "bf16" else float32
             for key in OUTPUT_KEYS:
                 torch.testing.assert_close(out[key], expected[key], atol=0, rtol=0)
+
+
+def test_original_frames_are_stored_contiguous(make_model, random_video, random_queries):
+    # A clip handed over as a view (here channels-first permuted back) is made contiguous once in encode,
+    # not flattened into a fresh copy for every chunk of queries; the answers are unchanged.
+    model = make_model(rgb_patch_source="original")
+    video = random_video(3, 30, 50)
+    view = video.permute(0, 3, 1, 2).contiguous().permute(0, 2, 3, 1)
+    assert not view.is_contiguous()
+    scene = model.encode(view)
+    assert scene.patch_video.is_contiguous()
+    queries = random_queries(8, 3)
+    expected = model.encode(video).query(queries)
+    for key, value in scene.query(queries, chunk_size=3).items():
+        # Not bit-identical: the resize kernel differs with the memory layout.
+        torch.testing.assert_close(value, expected[key], atol=1e-5, rtol=0)

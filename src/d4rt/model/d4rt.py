@@ -149,14 +149,15 @@ class D4RT(nn.Module):
         video = check_video(video, self.config.max_frames)
         frames, height, width, _ = video.shape
         device = next(self.parameters()).device
-        video = video.to(device)
-        resized = encoder_frames(video, self.config.image_size)[None]
+        resized = encoder_frames(video, self.config.image_size, device)[None]
         aspect = torch.tensor([width / height], device=device)
         tokens = self.encode_tokens(resized, aspect)
         if self.config.rgb_patch_size == 0:
             patch_video = None
         elif self.config.rgb_patch_source == "original":
-            patch_video = video[None]
+            # Contiguous once here: patch sampling flattens the frames for every query chunk, which would
+            # otherwise copy a permuted or sliced clip again and again.
+            patch_video = video.to(device).contiguous()[None]
         else:
             patch_video = resized
         return EncodedScene(self, tokens, frames, height, width, patch_video)
