@@ -231,7 +231,14 @@ class D4RTConfig:
         path = Path(path)
         if not path.is_file():
             raise UserError(f"config file not found: {path}")
-        return cls.from_json(path.read_text())
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as err:
+            raise UserError(f"cannot read config file {path}: {err}") from None
+        try:
+            return cls.from_json(text)
+        except UserError as err:
+            raise UserError(f"{path}: {err}") from None
 
 
 def _is_int(value: Any) -> bool:

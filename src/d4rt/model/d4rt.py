@@ -182,8 +182,7 @@ class D4RT(nn.Module):
         config, state_dict = read_checkpoint(directory, device)
         with torch.device(device):
             model = cls(config)
-        check_state_dict(model, state_dict, f"checkpoint {directory}")
-        model.load_state_dict(state_dict, strict=True)
+        model.load_checked_state_dict(state_dict, f"checkpoint {directory}")
         return model.eval()
 
     def load_checked_state_dict(self, state_dict: dict[str, torch.Tensor], source: str = "state dict") -> None:
