@@ -77,17 +77,30 @@ def test_bf16_autocast_encode_and_query(tiny_model, random_video, random_queries
     assert all(torch.isfinite(out[key].float()).all() for key in OUTPUT_KEYS)
 
 
+def counted(forward, calls):
+    def wrapper(*args):
+        calls.append(1)
+        return forward(*args)
+    return wrapper
+
+
 def test_activation_checkpointing_gives_the_same_values_and_gradients(make_model):
     video, queries, aspect = full_coverage_batch(make_model(max_frames=4).config, queries=16)
-    grads = []
+    grads, block_calls = [], []
     for checkpointing in (False, True):
         model = make_model(max_frames=4, gradient_checkpointing=checkpointing).train()
+        calls = []
+        for block in (*model.encoder.blocks, *model.decoder.blocks):
+            block.forward = counted(block.forward, calls)  # (forward hooks do not fire when recomputing)
         out = model(video, queries, aspect)
         total_loss(out).backward()
         grads.append({n: p.grad for n, p in model.named_parameters()})
+        block_calls.append(len(calls))
         if checkpointing:
             torch.testing.assert_close(out["points"], reference["points"], atol=1e-6, rtol=0)
         reference = out
+    # Checkpointing really recomputes: every block runs again in the backward pass.
+    assert block_calls[1] == 2 * block_calls[0]
     for name, grad in grads[0].items():
         torch.testing.assert_close(grads[1][name], grad, atol=1e-6, rtol=1e-5, msg=lambda m: f"{name}: {m}")
 

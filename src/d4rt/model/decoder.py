@@ -11,10 +11,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.utils.checkpoint import checkpoint
 
 from d4rt.config import D4RTConfig
-from d4rt.model.layers import MLP, CrossAttention
+from d4rt.model.layers import MLP, CrossAttention, run_block
 
 # Channels of the raw head output, in order (13 numbers per query, as in the paper).
 HEAD_CHANNELS = {"points": 3, "uv": 2, "visibility_logit": 1, "motion": 3, "normals": 3, "confidence": 1}
@@ -99,10 +98,10 @@ class QueryDecoder(nn.Module):
         return [block.attn.project_context(tokens) for block in self.blocks]
 
     def forward(self, query_tokens: torch.Tensor, scene_kv: SceneKV) -> dict[str, torch.Tensor]:
+        """``query_tokens: (B, N, decoder_dim)``, ``scene_kv`` from :meth:`project_scene` -> dict of
+        ``(B, N, ...)`` outputs (see :class:`PredictionHeads`)."""
+        recompute = self.config.gradient_checkpointing and self.training
         x = query_tokens
-        for block, (keys, values) in zip(self.blocks, scene_kv):
-            if self.config.gradient_checkpointing and self.training and torch.is_grad_enabled():
-                x = checkpoint(block, x, keys, values, use_reentrant=False)
-            else:
-                x = block(x, keys, values)
+        for block, (keys, values) in zip(self.blocks, scene_kv, strict=True):
+            x = run_block(block, x, keys, values, recompute=recompute)
         return self.heads(x)

@@ -12,10 +12,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.utils.checkpoint import checkpoint
 
 from d4rt.config import D4RTConfig
-from d4rt.model.layers import SelfAttentionBlock, sincos_1d, sincos_2d
+from d4rt.model.layers import SelfAttentionBlock, run_block, sincos_1d, sincos_2d
 
 
 class TubeletEmbedding(nn.Module):
@@ -111,6 +110,4 @@ class VideoEncoder(nn.Module):
         return self.norm(x)
 
     def _run(self, block: nn.Module, x: torch.Tensor) -> torch.Tensor:
-        if self.config.gradient_checkpointing and self.training and torch.is_grad_enabled():
-            return checkpoint(block, x, use_reentrant=False)
-        return block(x)
+        return run_block(block, x, recompute=self.config.gradient_checkpointing and self.training)

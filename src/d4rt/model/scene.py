@@ -104,17 +104,12 @@ class EncodedScene:
         cache = self.model.config.cache_scene_kv if cache_kv is None else bool(cache_kv)
 
         outputs: dict[str, list[torch.Tensor]] = {key: [] for key in OUTPUT_KEYS}
-        for start in range(0, queries.shape[0], chunk):
+        # No queries still run one (empty) chunk, so the empty answers have the usual shapes and dtypes.
+        for start in range(0, max(queries.shape[0], 1), chunk):
             answer = self.model.decode(queries[None, start:start + chunk], self.scene_kv(cache), self.patch_video)
             for key in OUTPUT_KEYS:
                 outputs[key].append(answer[key][0])
-        if queries.shape[0] == 0:
-            return self._empty()
         return {key: torch.cat(parts) for key, parts in outputs.items()}
-
-    def _empty(self) -> dict[str, torch.Tensor]:
-        widths = {"points": 3, "uv": 2, "visibility": None, "motion": 3, "normals": 3, "confidence": None}
-        return {key: torch.zeros((0,) if w is None else (0, w), device=self.tokens.device) for key, w in widths.items()}
 
     def __repr__(self) -> str:
         return (f"EncodedScene(frames={self.num_frames}, original={self.width}x{self.height}, "
