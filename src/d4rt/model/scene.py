@@ -92,7 +92,7 @@ class EncodedScene:
             - ``visibility (N,)``: probability that the point is visible in frame t_tgt.
             - ``motion (N, 3)``: the point's 3D displacement from time t_src to t_tgt, in the camera
               coordinates of t_cam.
-            - ``normals (N, 3)``: unit surface normal, camera coordinates of t_cam.
+            - ``normals (N, 3)``: unit surface normal at time t_tgt, camera coordinates of t_cam.
             - ``confidence (N,)``: positive confidence of ``points`` (higher is more certain).
         """
         queries = check_queries(queries, self.num_frames)
