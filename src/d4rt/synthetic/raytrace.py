@@ -18,6 +18,7 @@ from d4rt.synthetic.scene import SceneDescription
 from d4rt.synthetic.shapes import canonical_normal, intersect
 
 CURVED = ("sphere", "cylinder", "cone", "outdoor")
+GRAZING_COS = 0.5  # plane hits of rays within 60 degrees of grazing are refined in float64
 
 
 @dataclass
@@ -50,18 +51,10 @@ class SceneTracer:
         lin = np.swapaxes(rot, -1, -2) / scale[None, :, :, None]
         to_canon = np.concatenate([lin, trans[..., None]], -1)  # (T, K, 3, 4)
         # One contiguous (T, ...) table per body: per-ray rows are gathered with index_select, far
-        # cheaper than advanced indexing into (T, K, ...) arrays. float64 copies give exact depths on
-        # curved bodies (see ``surface``).
-        def tables(array, dtype_):
-            return [torch.as_tensor(np.ascontiguousarray(array[:, k]), dtype=dtype_, device=self.device)
-                    for k in range(scene.num_bodies)]
-
-        self._canon = tables(to_canon, dtype)  # world -> canonical primitive frame, (T, 3, 4)
-        self._canon64 = tables(to_canon, torch.float64)
-        self._rotation = tables(rot, dtype)  # body -> world rotation, (T, 3, 3)
-        self._translation = tables(trans, dtype)  # body origin in the world, (T, 3)
+        # cheaper than advanced indexing into (T, K, ...) arrays. Kept in the tracing dtype and in
+        # float64 (exact ground truth where float32 is ill-conditioned, see ``surface``).
+        self._tables = {dt: _BodyTables(to_canon, rot, trans, scale, dt, self.device) for dt in {dtype, torch.float64}}
         self.translation = torch.as_tensor(trans, dtype=dtype, device=self.device)  # (T, K, 3)
-        self.scale = torch.as_tensor(scale, dtype=dtype, device=self.device)  # (K, 3) half-extents
         self.radius = [b.bounding_radius for b in scene.bodies]
 
     # ---------------------------------------------------------------------------------------------
@@ -88,7 +81,7 @@ class SceneTracer:
                     continue
             else:
                 x0, y0, x1, y1 = 0, 0, w, h
-            a = rows(self._canon[k], frames)  # (F, 3, 4)
+            a = rows(self._tables[self.dtype].canon[k], frames)  # (F, 3, 4)
             o_c = _affine(a, origins)  # per frame
             o_c = tuple(c[:, None, None] for c in o_c)
             d_block = [c[:, y0:y1, x0:x1] for c in planes]
@@ -104,13 +97,18 @@ class SceneTracer:
         return Hits(best_t, best_obj, best_face)
 
     def trace_rays(self, frames: torch.Tensor, origins: torch.Tensor, dirs: torch.Tensor, t_min: float = 1e-4,
-                   include_environment: bool = True, t_max: torch.Tensor | None = None) -> Hits:
+                   include_environment: bool = True, t_max: torch.Tensor | None = None,
+                   dtype: torch.dtype | None = None) -> Hits:
         """Cast arbitrary rays. frames: (N,) long; origins, dirs: (N, 3). Returns Hits of shape (N,).
 
         ``t_max`` (N,) skips bodies whose bounding sphere starts beyond it (e.g. shadow rays).
+        ``dtype``: float64 casts exactly like the ground-truth oracle (default: the tracer's dtype).
         """
+        dtype = dtype or self.dtype
+        tables = self._tables[dtype]
+        origins, dirs = origins.to(dtype), dirs.to(dtype)
         n = dirs.shape[0]
-        best_t = torch.full((n,), float("inf"), dtype=self.dtype, device=self.device)
+        best_t = torch.full((n,), float("inf"), dtype=dtype, device=self.device)
         best_obj = torch.zeros((n,), dtype=torch.uint8, device=self.device)
         best_face = torch.zeros((n,), dtype=torch.uint8, device=self.device)
         for k, body in enumerate(self.scene.bodies):
@@ -119,13 +117,13 @@ class SceneTracer:
             if k == 0:
                 idx = None
             else:
-                idx = self._sphere_candidates(k, frames, origins, dirs, t_min, t_max)
+                idx = self._sphere_candidates(tables.translation[k], k, frames, origins, dirs, t_min, t_max)
                 if idx.numel() == 0:
                     continue
             fr = frames if idx is None else frames[idx]
             o = origins if idx is None else origins[idx]
             d = dirs if idx is None else dirs[idx]
-            a = rows(self._canon[k], fr)
+            a = rows(tables.canon[k], fr)
             t, face = intersect(body.shape, _affine(a, o), _linear(a, d), t_min, body.r_top)
             cur = best_t if idx is None else best_t[idx]
             nearer = t < cur
@@ -140,9 +138,10 @@ class SceneTracer:
                 best_face[sel] = face[nearer]
         return Hits(best_t, best_obj, best_face)
 
-    def _sphere_candidates(self, k, frames, origins, dirs, t_min, t_max):
-        """Indices of rays that pass within body k's bounding sphere (ahead of t_min, before t_max)."""
-        centre = rows(self._translation[k], frames)
+    def _sphere_candidates(self, translation, k, frames, origins, dirs, t_min, t_max):
+        """Indices of rays that pass within body k's bounding sphere (ahead of t_min, before t_max);
+        translation: (T, 3) body k's origin per frame."""
+        centre = rows(translation, frames)
         cx, cy, cz = (centre[:, i] - origins[:, i] for i in range(3))
         dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
         dd = dx * dx + dy * dy + dz * dz
@@ -159,20 +158,25 @@ class SceneTracer:
 
     # ---------------------------------------------------------------------------------------------
     def surface(self, frames: torch.Tensor, origins: torch.Tensor, dirs: torch.Tensor, hits: Hits,
-                exact_depth: bool = False) -> dict:
-        """Surface data of hit rays, in the tracer's dtype. frames: (M,) long; origins, dirs: (M, 3)
-        (pass them in float64 when ``exact_depth``); hits: (M,).
+                exact_depth: bool = False, dtype: torch.dtype | None = None) -> dict:
+        """Surface data of hit rays. frames: (M,) long; origins, dirs: (M, 3) (pass them in float64 when
+        ``exact_depth``); hits: (M,). Computed in ``dtype`` (default: the tracer's).
 
         Returns ``t (M,)``, ``world_point (M,3)``, ``world_normal (M,3)`` (unit, facing the ray's side)
         and ``local_point (M,3)`` (body frame, metres: where textures live). With ``exact_depth``, also
-        ``t_exact (M,)`` in float64: the hit decides WHICH body a ray sees, and rays on curved bodies
-        are intersected again with that body alone in float64. (Their float32 roots lose digits to
-        cancellation when the camera is many radii away; plane hits keep float32's relative precision.)
+        ``t_exact (M,)`` in float64 and ``lost (M,)``: tracing decided WHICH body a ray sees; the rays
+        whose float32 hit is ill-conditioned are intersected again with that body alone in float64 (all
+        rays on curved bodies, whose roots lose digits to cancellation when the camera is many radii
+        away, and grazing rays on planes, whose hits amplify rounding). ``lost`` marks rays whose body
+        the float64 ray misses altogether (silhouettes): the caller must cast them again in float64.
         """
-        dt = self.dtype
+        dt = dtype or self.dtype
+        tables = self._tables[dt]
+        refine = exact_depth and dt != torch.float64
         o, d = origins.to(dt), dirs.to(dt)
-        t = hits.t.to(dt)
+        t = hits.t.to(dt).clone()
         t_exact = hits.t.to(torch.float64).clone() if exact_depth else None
+        lost = torch.zeros_like(hits.t, dtype=torch.bool)
         local = torch.empty_like(o)
         normal = torch.empty_like(o)
         obj = hits.obj.long()
@@ -180,25 +184,40 @@ class SceneTracer:
             body = self.scene.bodies[k]
             idx = torch.nonzero(obj == k).squeeze(1)
             fr = frames[idx]
-            if exact_depth and body.shape in CURVED and dt != torch.float64:
-                a64 = rows(self._canon64[k], fr)
-                o64, d64 = origins[idx].to(torch.float64), dirs[idx].to(torch.float64)
-                t_ref, _ = intersect(body.shape, _affine(a64, o64), _linear(a64, d64), 0.0, body.r_top)
-                # A grazing float32 hit may vanish in float64: keep the traced one then.
-                t_exact[idx] = torch.where(torch.isfinite(t_ref), t_ref, t_exact[idx])
-                t[idx] = t_exact[idx].to(dt)
-            a = rows(self._canon[k], fr)
+            if refine and body.shape in CURVED:
+                self._refine(k, idx, frames, origins, dirs, t, t_exact, lost)
+            a = rows(tables.canon[k], fr)
             o_c, d_c = _affine(a, o[idx]), _linear(a, d[idx])
             t_k = t[idx]
             p_c = torch.stack([oc + t_k * dc for oc, dc in zip(o_c, d_c)], -1)
-            n_local = canonical_normal(body.shape, p_c, hits.face[idx], body.r_top) / self.scale[k]
-            n_world = _rotate(rows(self._rotation[k], fr), n_local)
-            local[idx] = p_c * self.scale[k]
-            normal[idx] = n_world / n_world.norm(dim=-1, keepdim=True)
+            n_local = canonical_normal(body.shape, p_c, hits.face[idx], body.r_top) / tables.scale[k]
+            n_world = _rotate(rows(tables.rotation[k], fr), n_local)
+            n_world = n_world / n_world.norm(dim=-1, keepdim=True)
+            local[idx] = p_c * tables.scale[k]
+            normal[idx] = n_world
+            if refine and body.shape not in CURVED:
+                d_k = d[idx]
+                cos = (n_world * d_k).sum(-1).abs() / d_k.norm(dim=-1)
+                grazing = idx[cos < GRAZING_COS]
+                if grazing.numel():
+                    self._refine(k, grazing, frames, origins, dirs, t, t_exact, lost)
+        if exact_depth and not refine:
+            t_exact = t.to(torch.float64)
         out = {"t": t, "world_point": o + t[:, None] * d, "world_normal": normal, "local_point": local}
         if exact_depth:
-            out["t_exact"] = t_exact
+            out["t_exact"], out["lost"] = t_exact, lost
         return out
+
+    def _refine(self, k, idx, frames, origins, dirs, t, t_exact, lost) -> None:
+        """Intersect rays ``idx`` with body k alone in float64; update t_exact, t and lost in place."""
+        a64 = rows(self._tables[torch.float64].canon[k], frames[idx])
+        o64, d64 = origins[idx].to(torch.float64), dirs[idx].to(torch.float64)
+        body = self.scene.bodies[k]
+        t_ref, _ = intersect(body.shape, _affine(a64, o64), _linear(a64, d64), 0.0, body.r_top)
+        found = torch.isfinite(t_ref)
+        t_exact[idx] = torch.where(found, t_ref, t_exact[idx])
+        t[idx] = t_exact[idx].to(t.dtype)
+        lost[idx] = ~found
 
     def projected_rects(self, frames: torch.Tensor, cam_to_world: torch.Tensor, intrinsics: torch.Tensor,
                         height: int, width: int, near: float = 1e-3) -> torch.Tensor:
@@ -229,6 +248,19 @@ class SceneTracer:
         lo = torch.zeros(4, dtype=self.dtype, device=self.device)
         rect = torch.minimum(torch.maximum(rect, lo), torch.stack([full[2], full[3], full[2], full[3]]))
         return rect.long()
+
+
+class _BodyTables:
+    """Per-body (T, ...) tables in one dtype: canonical maps (T, 3, 4), rotations (T, 3, 3),
+    translations (T, 3); and the (K, 3) half-extents."""
+
+    def __init__(self, to_canon, rot, trans, scale, dtype, device):
+        def split(array):
+            return [torch.as_tensor(np.ascontiguousarray(array[:, k]), dtype=dtype, device=device)
+                    for k in range(array.shape[1])]
+
+        self.canon, self.rotation, self.translation = split(to_canon), split(rot), split(trans)
+        self.scale = torch.as_tensor(scale, dtype=dtype, device=device)
 
 
 def rows(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:

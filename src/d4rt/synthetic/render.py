@@ -66,11 +66,25 @@ def _render_chunk(tracer, frames, intrinsics, cam_to_world, height, width, aa_sa
     flat_dirs = dirs64.reshape(-1, 3)
     flat_hits = Hits(hits.t.reshape(-1), hits.obj.reshape(-1), hits.face.reshape(-1))
     surf = tracer.surface(flat_frames, flat_origins, flat_dirs, flat_hits, exact_depth=True)
+    # Which body a pixel sees is decided in float32; next to a silhouette that decision may differ from
+    # exact arithmetic, so those pixels (and any whose body the float64 ray misses) are cast again in
+    # float64, exactly as the ground-truth oracle casts them.
+    recast = torch.nonzero(_neighbour_changes(hits.obj, hits.face).reshape(-1) | surf["lost"]).squeeze(1)
+    if recast.numel():
+        fr, o, d = flat_frames[recast], flat_origins[recast], flat_dirs[recast]
+        exact_hits = tracer.trace_rays(fr, o, d, dtype=torch.float64)
+        exact = tracer.surface(fr, o, d, exact_hits, exact_depth=True, dtype=torch.float64)
+        flat_hits.t[recast] = exact_hits.t.to(dt)
+        flat_hits.obj[recast] = exact_hits.obj
+        flat_hits.face[recast] = exact_hits.face
+        surf["t_exact"][recast] = exact["t_exact"]
+        for key in ("world_point", "world_normal", "local_point"):
+            surf[key][recast] = exact[key].to(dt)
     normal_cam = _rotate(rot.transpose(-1, -2)[:, None], surf["world_normal"].reshape(f, hw, 3))
     result = {
         "depth": surf["t_exact"].reshape(f, height, width).to(torch.float32),
         "normals": normal_cam.reshape(f, height, width, 3).to(torch.float32),
-        "object_ids": hits.obj,
+        "object_ids": flat_hits.obj.reshape(f, height, width),
     }
     if geometry_only:
         return result
@@ -79,7 +93,7 @@ def _render_chunk(tracer, frames, intrinsics, cam_to_world, height, width, aa_sa
     color = shade(tracer, flat_frames, flat_origins.to(dt), flat_dirs.to(dt), flat_hits, surf, focal)
     color = color.reshape(f, height, width, 3)
     if aa_samples > 1:
-        edges = _edge_pixels(hits, result["normals"])
+        edges = _neighbour_changes(result["object_ids"], flat_hits.face.reshape(f, height, width), result["normals"])
         if edges.any():
             color[edges] = _supersample(tracer, frames, intrinsics.to(dt), cam_to_world.to(dt), edges, aa_samples)
     result["rgb"] = _to_srgb8(color)
@@ -156,22 +170,24 @@ def _in_shadow(tracer, frames, point, normal, to_light, dist, hits) -> torch.Ten
     return shadowed
 
 
-def _edge_pixels(hits: Hits, normals: torch.Tensor) -> torch.Tensor:
-    """Pixels whose 4-neighbourhood shows another body, another face or a crease: (F, H, W) bool.
+def _neighbour_changes(obj: torch.Tensor, face: torch.Tensor, normals: torch.Tensor | None = None) -> torch.Tensor:
+    """Pixels whose 4-neighbourhood shows another body or face (or, given normals, a crease):
+    (F, H, W) bool.
 
     All primitives are convex, so a depth discontinuity always comes with a change of body or face
     (the room's walls are separate faces): no depth test is needed, and none would misfire on
     grazing planes, whose depth legitimately changes fast from pixel to pixel.
     """
-    edge = torch.zeros_like(hits.t, dtype=torch.bool)
+    edge = torch.zeros_like(obj, dtype=torch.bool)
     for dim in (1, 2):
-        n = hits.t.shape[dim]
+        n = obj.shape[dim]
         a = [slice(None)] * 3
         b = [slice(None)] * 3
         a[dim], b[dim] = slice(0, n - 1), slice(1, n)
         a, b = tuple(a), tuple(b)
-        diff = (hits.obj[a] != hits.obj[b]) | (hits.face[a] != hits.face[b])
-        diff |= (normals[a] * normals[b]).sum(-1) < 0.95
+        diff = (obj[a] != obj[b]) | (face[a] != face[b])
+        if normals is not None:
+            diff |= (normals[a] * normals[b]).sum(-1) < 0.95
         edge[a] |= diff
         edge[b] |= diff
     return edge
