@@ -16,11 +16,12 @@ All poses are camera-to-world (T, 4, 4) in OpenCV axes, numpy or torch; computed
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from d4rt.errors import UserError
 from d4rt.evaluation.metrics._arrays import as_array, check_finite, check_same_shape, check_shape
-from d4rt.geometry.alignment import Similarity, umeyama
 from d4rt.geometry.transforms import invert_rigid
+from d4rt.geometry.umeyama import Similarity, umeyama
 
 
 def pose_metrics(pred_cam_to_world, gt_cam_to_world) -> dict[str, float]:
@@ -30,7 +31,7 @@ def pose_metrics(pred_cam_to_world, gt_cam_to_world) -> dict[str, float]:
     Returns ``{"ate", "rpe_trans", "rpe_rot"}``.
     """
     pred, gt = _check_trajectories(pred_cam_to_world, gt_cam_to_world)
-    aligned = sim3_alignment(pred, gt).apply_to_poses(pred)
+    aligned = align_trajectory(sim3_alignment(pred, gt), pred)
     ate = _rmse(np.linalg.norm(aligned[:, :3, 3] - gt[:, :3, 3], axis=1))
     error = invert_rigid(_consecutive(gt)) @ _consecutive(aligned)
     return {
@@ -41,9 +42,21 @@ def pose_metrics(pred_cam_to_world, gt_cam_to_world) -> dict[str, float]:
 
 
 def sim3_alignment(pred_cam_to_world, gt_cam_to_world) -> Similarity:
-    """The similarity that best maps the predicted camera centres onto the ground-truth ones (Umeyama)."""
+    """The similarity that best maps the predicted camera centres onto the ground-truth ones (Umeyama,
+    as evo: straight-line and two-pose trajectories are fine, the residual is still minimal)."""
     pred, gt = _check_trajectories(pred_cam_to_world, gt_cam_to_world)
-    return umeyama(pred[:, :3, 3], gt[:, :3, 3], with_scale=True)
+    return umeyama(torch.from_numpy(pred[:, :3, 3]), torch.from_numpy(gt[:, :3, 3]), with_scale=True,
+                   allow_degenerate=True)
+
+
+def align_trajectory(similarity: Similarity, cam_to_world: np.ndarray) -> np.ndarray:
+    """Camera-to-world poses (T, 4, 4) mapped through a similarity as evo's ``align(correct_scale=True)``
+    does: translations scaled, then the rigid part applied on the left (rotations turn, centres move)."""
+    rotation = similarity.rotation.double().numpy()
+    out = np.array(cam_to_world, dtype=np.float64, copy=True)
+    out[:, :3, :3] = rotation @ out[:, :3, :3]
+    out[:, :3, 3] = similarity.apply(torch.from_numpy(out[:, :3, 3])).numpy()
+    return out
 
 
 def relative_pose_errors(pred_cam_to_world, gt_cam_to_world) -> tuple[np.ndarray, np.ndarray]:
