@@ -146,3 +146,18 @@ def test_inputs_torch_probabilities_and_shapes():
     missing[0, 0] = float("nan")
     hidden[0, 0] = False
     assert tapvid3d_metrics(gt, hidden, missing, hidden, INTRINSICS, IMAGE_SIZE)["apd3d"] == 1.0
+
+
+def test_per_frame_intrinsics_of_a_zooming_camera():
+    """With (T, 4) intrinsics each frame's threshold uses its own focal length: a 2.5x longer focal length
+    in the second half of the video divides the thresholds there by 2.5."""
+    gt = flat_tracks()
+    pred = offset_prediction(gt)
+    visible = np.ones(gt.shape[:2], bool)
+    per_frame = np.tile(INTRINSICS, (gt.shape[0], 1))
+    constant = tapvid3d_threshold_metrics(pred, visible, gt, visible, per_frame, IMAGE_SIZE, scaling="none")
+    assert constant["apd3d"] == pytest.approx(EXPECTED_WITHIN.mean())
+    per_frame[3:, :2] *= 2.5  # thresholds 0.04, 0.08, 0.16, 0.32, 0.64 in frames 3..5
+    zoomed = tapvid3d_threshold_metrics(pred, visible, gt, visible, per_frame, IMAGE_SIZE, scaling="none")
+    zoomed_within = np.array([0, 1, 2, 3, 3]) / 5  # offsets 0.05, 0.15, 0.3, 1.0, 5.0 against those
+    assert zoomed["apd3d"] == pytest.approx((EXPECTED_WITHIN.mean() + zoomed_within.mean()) / 2)

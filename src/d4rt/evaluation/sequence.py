@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from d4rt.errors import UserError
+from d4rt.geometry.camera import unproject_depth
+from d4rt.geometry.transforms import apply_transform, invert_rigid
 from d4rt.synthetic.clip import Clip
 
 
@@ -100,3 +102,19 @@ class EvalSequence:
     def image_size(self) -> tuple[int, int]:
         """(H, W)."""
         return self.rgb.shape[1], self.rgb.shape[2]
+
+    def world_tracks(self) -> np.ndarray | None:
+        """Ground-truth tracks (T, N, 3) moved into the camera of frame 0 (needs tracks and poses)."""
+        if self.tracks is None or self.cam_to_world is None:
+            return None
+        to_first = invert_rigid(self.cam_to_world[0]) @ self.cam_to_world  # camera k -> camera 0
+        return apply_transform(to_first[:, None], self.tracks.points)
+
+    def point_map(self) -> np.ndarray | None:
+        """Every pixel's ground-truth point (T, H, W, 3) in the camera of frame 0 (needs depth,
+        intrinsics and poses); NaN where there is no ground-truth depth."""
+        if self.depth is None or self.intrinsics is None or self.cam_to_world is None:
+            return None
+        depth = np.where(self.depth > 0, self.depth, np.nan).astype(np.float64)
+        to_first = invert_rigid(self.cam_to_world[0]) @ self.cam_to_world
+        return apply_transform(to_first[:, None, None], unproject_depth(depth, self.intrinsics))

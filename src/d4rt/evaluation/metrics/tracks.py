@@ -33,7 +33,8 @@ def tapvid3d_metrics(pred_points, pred_visible, gt_points, gt_visible, intrinsic
     """APD3D, 3D-AJ and OA of one video, as in TAPVid-3D.
 
     pred_points, gt_points: (T, N, 3) camera-frame tracks. pred_visible, gt_visible: (T, N) boolean.
-    intrinsics: (fx, fy, cx, cy) pixels at ``image_size`` = (H, W) of the video. scaling: one of
+    intrinsics: (fx, fy, cx, cy) pixels at ``image_size`` = (H, W) of the video (or (T, 4), one per
+    frame, for a camera that zooms). scaling: one of
     ``SCALINGS``: "median" / "mean" (one factor per video from points visible in both), "median_on_queries"
     (median over each track's query frame), "per_trajectory" (each track matches the ground-truth depth at
     its query frame), "reproduce_2d" (every point takes the ground-truth depth along its own ray), "none".
@@ -49,7 +50,7 @@ def tapvid3d_threshold_metrics(pred_points, pred_visible, gt_points, gt_visible,
                                scaling: str = "median", query_frames=None) -> dict[str, float]:
     """:func:`tapvid3d_metrics` plus ``pts_within_{px}`` and ``jaccard_{px}`` for every threshold."""
     pred, pred_vis, gt, gt_vis = _check_tracks(pred_points, pred_visible, gt_points, gt_visible)
-    focal = metric_focal_length(intrinsics, image_size)
+    focal = _check_focal(metric_focal_length(intrinsics, image_size), pred.shape[0])
     pred = pred * track_scale(pred, pred_vis, gt, gt_vis, scaling, query_frames)
     distance = np.linalg.norm(pred - gt, axis=-1)
     out = {"oa": float(np.mean(pred_vis == gt_vis))}
@@ -87,24 +88,29 @@ def world_track_metrics(pred_points, gt_points, gt_visible, gt_depth, intrinsics
     if scaling not in ("median", "mean", "none"):
         raise UserError(f"world-frame scaling must be 'median', 'mean' or 'none', got {scaling!r}")
     pred = pred * track_scale(pred, gt_vis, gt, gt_vis, scaling)
-    focal = metric_focal_length(intrinsics, image_size)
+    focal = np.broadcast_to(_check_focal(metric_focal_length(intrinsics, image_size), pred.shape[0]), depth.shape)
     error = (pred - gt)[gt_vis]
     distance = np.linalg.norm(error, axis=-1)
-    within = [np.mean(distance < px * depth[gt_vis] / focal) for px in THRESHOLDS_PX]
+    within = [np.mean(distance < px * depth[gt_vis] / focal[gt_vis]) for px in THRESHOLDS_PX]
     return {"apd3d": float(np.mean(within)), "l1": float(np.abs(error).sum(-1).mean())}
 
 
-def metric_focal_length(intrinsics, image_size) -> float:
-    """sqrt(fx * fy) after rescaling the video so its shorter side is 256 px (TAPVid-3D's resolution)."""
-    k = as_array(intrinsics, "intrinsics").reshape(-1)
-    if k.shape != (4,):
-        raise UserError(f"intrinsics must be (fx, fy, cx, cy), got {k.size} values")
+def metric_focal_length(intrinsics, image_size) -> float | np.ndarray:
+    """sqrt(fx * fy) after rescaling the video so its shorter side is 256 px (TAPVid-3D's resolution).
+
+    intrinsics: (fx, fy, cx, cy), or (T, 4) per frame for a zooming camera, which gives (T, 1) focal
+    lengths that broadcast over the tracks of each frame.
+    """
+    k = as_array(intrinsics, "intrinsics")
+    if k.shape[-1:] != (4,) or k.ndim > 2:
+        raise UserError(f"intrinsics must be (fx, fy, cx, cy) or (T, 4) of them, got shape {k.shape}")
     if len(image_size) != 2 or min(image_size) <= 0:
         raise UserError(f"image_size must be (H, W) with positive sides, got {tuple(image_size)}")
-    if not (k[0] > 0 and k[1] > 0):
-        raise UserError(f"focal lengths must be positive, got fx={k[0]}, fy={k[1]}")
+    if not ((k[..., 0] > 0).all() and (k[..., 1] > 0).all()):
+        raise UserError("focal lengths fx and fy must be positive")
     factor = METRIC_SHORT_SIDE / min(image_size)
-    return float(np.sqrt(k[0] * factor * k[1] * factor))
+    focal = np.sqrt(k[..., 0] * factor * k[..., 1] * factor)
+    return float(focal) if k.ndim == 1 else focal[:, None]
 
 
 def track_scale(pred: np.ndarray, pred_visible: np.ndarray, gt: np.ndarray, gt_visible: np.ndarray,
@@ -132,6 +138,12 @@ def track_scale(pred: np.ndarray, pred_visible: np.ndarray, gt: np.ndarray, gt_v
         return float("nan")  # undefined: no point is visible in both; every metric becomes NaN
     reduce = np.mean if scaling == "mean" else np.median
     return float(reduce(gt_norm[both]) / reduce(pred_norm[both]))
+
+
+def _check_focal(focal, frames: int):
+    if isinstance(focal, np.ndarray) and focal.shape[0] != frames:
+        raise UserError(f"per-frame intrinsics cover {focal.shape[0]} frames but the tracks have {frames}")
+    return focal
 
 
 def _query_frames(query_frames, tn: tuple[int, int]) -> np.ndarray:
