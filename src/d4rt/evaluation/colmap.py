@@ -4,8 +4,9 @@ Per sequence: the frames are written as PNGs, SIFT features are extracted (one s
 SIMPLE_RADIAL, focal length unknown), matched exhaustively (sequentially with 10 neighbours beyond
 ``EXHAUSTIVE_MAX_FRAMES`` frames), and the incremental mapper reconstructs. The largest model gives the
 poses; frames it did not register are reported as such, and pose metrics use the registered frames only.
-Nothing is known to COLMAP but the pixels: no intrinsics, no depth. Runs on the CPU (single-threaded
-mapping with a fixed seed, so runs repeat).
+Nothing is known to COLMAP but the pixels: no intrinsics, no depth. Runs on the CPU with a fixed seed;
+COLMAP's multi-threaded feature stages still make runs differ slightly (seen: the same frames register,
+poses move within the reconstruction's noise).
 """
 
 from __future__ import annotations
@@ -56,6 +57,7 @@ class ColmapPredictor:
             names = [f"{i:06d}.png" for i in range(t)]
             for name, frame in zip(names, rgb):
                 Image.fromarray(frame).save(images / name)
+            pycolmap.logging.minloglevel = 2  # errors only: the progress bar is the report, not COLMAP's log
             pycolmap.set_random_seed(self.seed)
             extraction = pycolmap.FeatureExtractionOptions()
             extraction.use_gpu = False
