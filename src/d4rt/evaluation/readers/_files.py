@@ -35,6 +35,18 @@ def read_uint16_png(path: Path) -> np.ndarray:
     return raw.astype(np.int64)
 
 
+def read_text_matrix(path: Path, shape: tuple[int, int], what: str) -> np.ndarray:
+    """A matrix written as whitespace-separated numbers (row major), e.g. KITTI intrinsics, ScanNet poses."""
+    try:
+        values = np.array(path.read_text().split(), dtype=np.float64)
+    except (OSError, ValueError) as err:
+        raise UserError(f"cannot read {what} {path}: {err}") from None
+    if values.size != shape[0] * shape[1]:
+        raise UserError(f"{path}: expected a {shape[0]}x{shape[1]} {what} ({shape[0] * shape[1]} numbers), "
+                        f"got {values.size}")
+    return values.reshape(shape)
+
+
 def natural_key(path: Path) -> list:
     """Sort key that orders frame_2 before frame_10."""
     return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]

@@ -25,7 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from d4rt.errors import UserError
-from d4rt.evaluation.readers._files import read_rgb, read_uint16_png, select_frames, sorted_files
+from d4rt.evaluation.readers._files import (
+    read_rgb,
+    read_text_matrix,
+    read_uint16_png,
+    select_frames,
+    sorted_files,
+)
 from d4rt.evaluation.sequence import EvalSequence
 
 DEPTH_UNITS_PER_METRE = 256.0
@@ -68,7 +74,8 @@ def read_sequence(root: Path, name: str, frames: slice | None = None) -> EvalSeq
         image_files = [base / "image" / f"{s}.png" for s in stems]
         depth_files = [base / "groundtruth_depth" / f"{s.replace('_image_', '_groundtruth_depth_', 1)}.png"
                        for s in stems]
-        intrinsics = np.stack([_read_intrinsics(base / "intrinsics" / f"{s}.txt") for s in stems])
+        intrinsics = np.stack([read_text_matrix(base / "intrinsics" / f"{s}.txt", (3, 3), "KITTI intrinsic matrix")
+                                for s in stems])
     rgb = np.stack([read_rgb(p) for p in image_files])
     depth = np.stack([read_uint16_png(p) for p in depth_files]) / DEPTH_UNITS_PER_METRE
     return EvalSequence(name, rgb, depth, intrinsics, frame_names=[p.stem for p in image_files])
@@ -86,12 +93,3 @@ def _official_frames(base: Path) -> dict[str, list[str]]:
         raise UserError(f"no <drive>_image_<frame>_image_<cam>.png files in {base / 'image'}")
     return {k: [stem for _, stem in sorted(v)] for k, v in sequences.items()}
 
-
-def _read_intrinsics(path: Path) -> np.ndarray:
-    try:
-        values = np.array(path.read_text().split(), dtype=np.float64)
-    except (OSError, ValueError) as err:
-        raise UserError(f"cannot read KITTI intrinsics {path}: {err}") from None
-    if values.size != 9:
-        raise UserError(f"{path}: expected 9 numbers (3x3 K), got {values.size}")
-    return values.reshape(3, 3)

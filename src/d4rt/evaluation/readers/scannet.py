@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from d4rt.errors import UserError
-from d4rt.evaluation.readers._files import read_rgb, read_uint16_png, sorted_files
+from d4rt.evaluation.readers._files import read_rgb, read_text_matrix, read_uint16_png, sorted_files
 from d4rt.evaluation.sequence import EvalSequence
 
 DEPTH_UNITS_PER_METRE = 1000.0
@@ -41,7 +41,7 @@ def read_sequence(root: Path, name: str, stride: int = 1, max_frames: int | None
     base = root / name
     ids = [int(p.stem) for p in sorted_files(base / "depth", "*.png")]
     ids = sorted(ids)[::stride][:max_frames]
-    poses = np.stack([_read_matrix(base / "pose" / f"{i}.txt") for i in ids])
+    poses = np.stack([read_text_matrix(base / "pose" / f"{i}.txt", (4, 4), "ScanNet pose") for i in ids])
     finite = np.isfinite(poses).all((1, 2))
     notes = []
     if not finite.all():
@@ -51,16 +51,7 @@ def read_sequence(root: Path, name: str, stride: int = 1, max_frames: int | None
         raise UserError(f"ScanNet {name}: no selected frame has a finite ground-truth pose")
     depth = np.stack([read_uint16_png(base / "depth" / f"{i}.png") for i in ids]) / DEPTH_UNITS_PER_METRE
     rgb = np.stack([read_rgb(base / "color" / f"{i}.jpg", size=depth.shape[1:]) for i in ids])
-    k = _read_matrix(base / "intrinsic" / "intrinsic_depth.txt")[:3, :3]
+    k = read_text_matrix(base / "intrinsic" / "intrinsic_depth.txt", (4, 4), "ScanNet intrinsic matrix")[:3, :3]
     return EvalSequence(name, rgb, depth, np.repeat(k[None], len(ids), 0), poses[finite],
                         frame_names=[str(i) for i in ids], notes=notes)
 
-
-def _read_matrix(path: Path) -> np.ndarray:
-    try:
-        values = np.array(path.read_text().split(), dtype=np.float64)
-    except (OSError, ValueError) as err:
-        raise UserError(f"cannot read ScanNet matrix {path}: {err}") from None
-    if values.size != 16:
-        raise UserError(f"{path}: expected a 4x4 matrix (16 numbers), got {values.size}")
-    return values.reshape(4, 4)
