@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,7 +53,9 @@ class D4RTConfig:
             attention heads and MLP hidden width.
         global_attention_every: block i (0-indexed) attends over the whole clip when
             ``(i + 1) % global_attention_every == 0`` and within one tubelet time step otherwise.
-            2 alternates frame-local and global blocks as VGGT does (not in paper).
+            2 alternates frame-local and global blocks as VGGT does (not in paper). At most
+            ``encoder_depth``: an encoder without a global block would leave the aspect-ratio token
+            unattended and the frames unconnected.
 
     Query embedding
         fourier_frequencies: number of Fourier frequencies per axis of (u, v) (not in paper).
@@ -112,28 +115,34 @@ class D4RTConfig:
 
     def __post_init__(self) -> None:
         # JSON gives lists; keep tuples so configs compare equal after a round trip.
-        object.__setattr__(self, "pixel_mean", tuple(float(x) for x in self.pixel_mean))
-        object.__setattr__(self, "pixel_std", tuple(float(x) for x in self.pixel_std))
+        for name in ("pixel_mean", "pixel_std"):
+            object.__setattr__(self, name, _rgb_triple(name, getattr(self, name)))
         self.validate()
 
     # ----------------------------------------------------------------------------------------- checks
     def validate(self) -> None:
         """Raise :class:`UserError` naming the first inconsistent field."""
+        if not isinstance(self.name, str):
+            raise UserError(f"config field name must be a string, got {self.name!r}")
         positive = ["image_size", "max_frames", "patch_size", "tubelet_frames", "encoder_dim",
                     "encoder_depth", "encoder_heads", "encoder_mlp_dim", "global_attention_every",
                     "fourier_frequencies", "decoder_dim", "decoder_depth", "decoder_heads",
                     "decoder_mlp_dim", "query_chunk_size"]
         for name in positive:
             value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            if not _is_int(value) or value < 1:
                 raise UserError(f"config field {name} must be a positive integer, got {value!r}")
+        if self.global_attention_every > self.encoder_depth:
+            # No global block: frames never exchange information and nothing attends to the aspect token.
+            raise UserError(f"config global_attention_every {self.global_attention_every} exceeds encoder_depth "
+                            f"{self.encoder_depth}: the encoder would have no global-attention block")
         if self.image_size % self.patch_size:
             raise UserError(f"config image_size {self.image_size} is not a multiple of patch_size {self.patch_size}")
         for part in ("encoder", "decoder"):
             dim, heads = getattr(self, f"{part}_dim"), getattr(self, f"{part}_heads")
             if dim % heads:
                 raise UserError(f"config {part}_dim {dim} is not divisible by {part}_heads {heads}")
-        if not isinstance(self.rgb_patch_size, int) or self.rgb_patch_size < 0:
+        if not _is_int(self.rgb_patch_size) or self.rgb_patch_size < 0:
             raise UserError(f"config rgb_patch_size must be an integer >= 0, got {self.rgb_patch_size!r}")
         if self.rgb_patch_source not in PATCH_SOURCES:
             raise UserError(f"config rgb_patch_source must be one of {PATCH_SOURCES}, got {self.rgb_patch_source!r}")
@@ -141,17 +150,17 @@ class D4RTConfig:
             raise UserError(
                 f"config confidence_activation must be one of {CONFIDENCE_ACTIVATIONS}, got {self.confidence_activation!r}")
         if self.fourier_max_frequency is not None and not (
-                isinstance(self.fourier_max_frequency, (int, float)) and self.fourier_max_frequency >= 1.0):
+                _is_number(self.fourier_max_frequency) and self.fourier_max_frequency >= 1.0):
             raise UserError(f"config fourier_max_frequency must be >= 1 cycle per image, got {self.fourier_max_frequency!r}")
         for name in ("layer_norm_eps", "init_std"):
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or not value > 0:
+            if not _is_number(value) or not value > 0:
                 raise UserError(f"config field {name} must be a positive number, got {value!r}")
         for name in ("gradient_checkpointing", "cache_scene_kv"):
             if not isinstance(getattr(self, name), bool):
                 raise UserError(f"config field {name} must be true or false, got {getattr(self, name)!r}")
-        if len(self.pixel_mean) != 3 or len(self.pixel_std) != 3 or min(self.pixel_std) <= 0:
-            raise UserError("config pixel_mean and pixel_std must be 3 numbers each, pixel_std positive")
+        if min(self.pixel_std) <= 0:
+            raise UserError(f"config pixel_std must be positive, got {list(self.pixel_std)}")
 
     # ------------------------------------------------------------------------------------ derived sizes
     @property
@@ -222,7 +231,29 @@ class D4RTConfig:
         path = Path(path)
         if not path.is_file():
             raise UserError(f"config file not found: {path}")
-        return cls.from_json(path.read_text())
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as err:
+            raise UserError(f"cannot read config file {path}: {err}") from None
+        try:
+            return cls.from_json(text)
+        except UserError as err:
+            raise UserError(f"{path}: {err}") from None
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)  # JSON true is not a size
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _rgb_triple(name: str, value: Any) -> tuple[float, float, float]:
+    """Three finite numbers (one per RGB channel) as a tuple of floats."""
+    if not isinstance(value, (list, tuple)) or len(value) != 3 or not all(_is_number(x) for x in value):
+        raise UserError(f"config field {name} must be 3 numbers (R, G, B), got {value!r}")
+    return tuple(float(x) for x in value)
 
 
 def _checked_fields(values: dict[str, Any]) -> dict[str, Any]:

@@ -47,6 +47,13 @@ def test_default_fourier_max_is_the_encoder_nyquist_frequency():
     ({"max_frames": 0}, "max_frames"),
     ({"confidence_activation": "relu"}, "confidence_activation"),
     ({"no_such_field": 1}, "no_such_field"),
+    ({"global_attention_every": 7}, "no global-attention block"),
+    ({"pixel_mean": "abc"}, "pixel_mean must be 3 numbers"),
+    ({"pixel_std": 0.2}, "pixel_std must be 3 numbers"),
+    ({"pixel_std": (0.2, 0.2, 0.0)}, "pixel_std must be positive"),
+    ({"rgb_patch_size": True}, "rgb_patch_size"),
+    ({"fourier_max_frequency": True}, "fourier_max_frequency"),
+    ({"init_std": float("nan")}, "init_std"),
 ])
 def test_bad_configs_raise_user_errors_naming_the_field(overrides, message):
     with pytest.raises(UserError, match=message):
@@ -60,3 +67,5 @@ def test_unknown_preset_and_bad_json():
         D4RTConfig.from_json("{")
     with pytest.raises(UserError, match="unknown D4RT config field"):
         D4RTConfig.from_json('{"encoder_width": 3}')
+    with pytest.raises(UserError, match="name must be a string"):
+        D4RTConfig.from_json('{"name": 5}')

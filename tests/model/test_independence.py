@@ -43,7 +43,7 @@ def test_changing_one_query_changes_no_other_answer(tiny_model, random_video, ra
     after = scene.query(changed)
     others = torch.arange(20) != 7
     for key in OUTPUT_KEYS:
-        # Exactly equal: the other rows go through the very same per-row computation.
+        # The other rows go through the very same per-row computation (kernels may still round differently).
         torch.testing.assert_close(before[key][others], after[key][others], atol=ATOL, rtol=0)
     # ... while the changed query's own answer does change (so the test can see a change at all).
     assert not torch.allclose(before["points"][7], after["points"][7])

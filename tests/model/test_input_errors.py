@@ -88,6 +88,8 @@ def test_training_forward_checks_its_inputs(tiny_model):
         tiny_model(video, bad, aspect)
     with pytest.raises(UserError, match="training video must be float"):
         tiny_model((video * 255).to(torch.uint8), queries, aspect)
+    with pytest.raises(UserError, match="queries is on meta but the model is on cpu"):
+        tiny_model(video, queries.to("meta"), aspect)
 
 
 def test_original_patch_source_requires_the_original_frames(make_model):

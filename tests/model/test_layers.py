@@ -111,7 +111,8 @@ def test_uint8_and_float_sources_agree_and_normalisation_applies():
 # ---------------------------------------------------------------------------------- encoder
 def test_frame_local_blocks_keep_time_steps_apart(make_model):
     # With only frame-local blocks, editing time step 0 leaves time step 1's tokens untouched.
-    model = make_model(global_attention_every=100)
+    model = make_model()
+    model.encoder.is_global = lambda index: False
     video = torch.rand(1, 4, 64, 64, 3)
     edited = video.clone()
     edited[:, :2] = torch.rand(1, 2, 64, 64, 3)

@@ -106,9 +106,9 @@ def test_aspect_ratio_token_takes_part_in_global_attention(make_model):
         wide, tall = (model.encode_tokens(video, torch.tensor([r])) for r in (2.0, 0.5))
         # The same pixels told they came from frames of different shapes give different video tokens.
         assert not torch.allclose(wide[:, :-1], tall[:, :-1], atol=1e-4)
-        # With frame-local blocks only, nothing carries the aspect token to the video tokens.
-        local_only = make_model(global_attention_every=100)
-        wide, tall = (local_only.encode_tokens(video, torch.tensor([r])) for r in (2.0, 0.5))
+        # Were every block frame-local (a config refuses that), nothing would carry it to the video tokens.
+        model.encoder.is_global = lambda index: False
+        wide, tall = (model.encode_tokens(video, torch.tensor([r])) for r in (2.0, 0.5))
         torch.testing.assert_close(wide[:, :-1], tall[:, :-1], atol=0, rtol=0)
 
 
@@ -172,3 +172,38 @@ def test_encoder_input_is_the_antialiased_bilinear_resize(tiny_model, random_vid
     expected = torch.nn.functional.interpolate(video.permute(0, 3, 1, 2).float() / 255, size=(64, 64),
                                                mode="bilinear", antialias=True).permute(0, 2, 3, 1)
     torch.testing.assert_close(scene.patch_video[0], expected, atol=1e-6, rtol=0)
+
+
+def test_cached_keys_follow_the_autocast_dtype(make_model, random_video, random_queries):
+    # Keys cached under bf16 autocast must not be reused by a float32 query (dtype error or rounded keys),
+    # and float32 keys must not be reused under autocast either: each setting answers as if uncached.
+    model = make_model()
+    scene = model.encode(random_video(4, 24, 32))
+    queries = random_queries(9, 4)
+    float32 = scene.query(queries, cache_kv=False)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        bf16 = scene.query(queries, cache_kv=False)
+    for first in ("bf16", "float32"):
+        scene.clear_cache()
+        for setting in (first, "float32" if first == "bf16" else "bf16", first):
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=setting == "bf16"):
+                out = scene.query(queries)
+            expected = bf16 if setting == "bf16" else float32
+            for key in OUTPUT_KEYS:
+                torch.testing.assert_close(out[key], expected[key], atol=0, rtol=0)
+
+
+def test_original_frames_are_stored_contiguous(make_model, random_video, random_queries):
+    # A clip handed over as a view (here channels-first permuted back) is made contiguous once in encode,
+    # not flattened into a fresh copy for every chunk of queries; the answers are unchanged.
+    model = make_model(rgb_patch_source="original")
+    video = random_video(3, 30, 50)
+    view = video.permute(0, 3, 1, 2).contiguous().permute(0, 2, 3, 1)
+    assert not view.is_contiguous()
+    scene = model.encode(view)
+    assert scene.patch_video.is_contiguous()
+    queries = random_queries(8, 3)
+    expected = model.encode(video).query(queries)
+    for key, value in scene.query(queries, chunk_size=3).items():
+        # Not bit-identical: the resize kernel differs with the memory layout.
+        torch.testing.assert_close(value, expected[key], atol=1e-5, rtol=0)

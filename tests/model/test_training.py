@@ -77,17 +77,30 @@ def test_bf16_autocast_encode_and_query(tiny_model, random_video, random_queries
     assert all(torch.isfinite(out[key].float()).all() for key in OUTPUT_KEYS)
 
 
+def counted(forward, calls):
+    def wrapper(*args):
+        calls.append(1)
+        return forward(*args)
+    return wrapper
+
+
 def test_activation_checkpointing_gives_the_same_values_and_gradients(make_model):
     video, queries, aspect = full_coverage_batch(make_model(max_frames=4).config, queries=16)
-    grads = []
+    grads, block_calls = [], []
     for checkpointing in (False, True):
         model = make_model(max_frames=4, gradient_checkpointing=checkpointing).train()
+        calls = []
+        for block in (*model.encoder.blocks, *model.decoder.blocks):
+            block.forward = counted(block.forward, calls)  # (forward hooks do not fire when recomputing)
         out = model(video, queries, aspect)
         total_loss(out).backward()
         grads.append({n: p.grad for n, p in model.named_parameters()})
+        block_calls.append(len(calls))
         if checkpointing:
             torch.testing.assert_close(out["points"], reference["points"], atol=1e-6, rtol=0)
         reference = out
+    # Checkpointing really recomputes: every block runs again in the backward pass.
+    assert block_calls[1] == 2 * block_calls[0]
     for name, grad in grads[0].items():
         torch.testing.assert_close(grads[1][name], grad, atol=1e-6, rtol=1e-5, msg=lambda m: f"{name}: {m}")
 
@@ -112,3 +125,34 @@ def test_confidence_is_positive_under_both_activations(make_model, activation):
     assert (out["confidence"] > 0).all()
     if activation == "one_plus_exp":
         assert (out["confidence"] >= 1).all()
+
+
+def test_heads_run_in_float32_under_autocast(make_model):
+    # The same decoder features give bit-identical float32 answers with and without bf16 autocast.
+    heads = make_model().decoder.heads
+    features = torch.randn(2, 5, heads.norm.normalized_shape[0]).bfloat16()
+    reference = heads(features)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = heads(features)
+    for key, value in out.items():
+        assert value.dtype == torch.float32, key
+        torch.testing.assert_close(value, reference[key], atol=0, rtol=0)
+
+
+def test_bf16_autocast_answers_are_float32(tiny_model, random_video, random_queries):
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = tiny_model.encode(random_video(3, 20, 20)).query(random_queries(5, 3))
+        batched = tiny_model(torch.rand(1, 2, 64, 64, 3), torch.zeros(1, 3, 5), torch.ones(1))
+    assert {value.dtype for value in [*out.values(), *batched.values()]} == {torch.float32}
+
+
+def test_a_model_cast_to_bf16_encodes_and_answers(make_model, random_video, random_queries):
+    # model.to(torch.bfloat16) (pure bf16 inference on GPU): the float32 pixels and Fourier features follow
+    # the weights' dtype, the answers stay float32 and are the same function as the float32 model's.
+    model = make_model()
+    video, queries = random_video(3, 20, 28), random_queries(7, 3)
+    reference = model.encode(video).query(queries)
+    out = model.to(torch.bfloat16).encode(video).query(queries)
+    for key in OUTPUT_KEYS:
+        assert out[key].dtype == torch.float32, key
+        torch.testing.assert_close(out[key], reference[key], atol=0.1, rtol=0.1)

@@ -92,3 +92,19 @@ def test_from_pretrained_loads_the_bundled_model_when_one_ships(make_model, tmp_
     monkeypatch.setattr("d4rt.model.d4rt.bundled_model_dir", lambda: tmp_path / "d4rt-tiny")
     loaded = D4RT.from_pretrained()
     assert all(torch.equal(a, b) for a, b in zip(model.state_dict().values(), loaded.state_dict().values()))
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda d: (d / WEIGHTS_NAME).write_bytes((d / WEIGHTS_NAME).read_bytes()[:-100]), "cannot read .*model.safetensors"),
+    (lambda d: (d / WEIGHTS_NAME).write_bytes(b"not a safetensors file"), "cannot read .*model.safetensors"),
+    (lambda d: (d / WEIGHTS_NAME).unlink(), "has no model.safetensors"),
+    (lambda d: (d / CONFIG_NAME).write_bytes(b"\xff\xfe{"), "cannot read config file .*config.json"),
+    (lambda d: (d / CONFIG_NAME).write_text("{"), "config.json: config is not valid JSON"),
+    (lambda d: (d / CONFIG_NAME).write_text('{"encoder_width": 192}'), "config.json: unknown D4RT config field"),
+])
+def test_corrupt_or_missing_checkpoint_files_raise_one_line(saved, damage, message):
+    _, directory = saved
+    damage(directory)
+    with pytest.raises(UserError, match=message) as err:
+        D4RT.from_pretrained(directory)
+    assert "\n" not in str(err.value)

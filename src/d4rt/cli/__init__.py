@@ -13,7 +13,7 @@ import sys
 from d4rt.errors import UserError
 
 # One module per subcommand, in the order `d4rt --help` lists them.
-COMMANDS = ["demo", "generate", "info", "train"]
+COMMANDS = ["demo", "eval", "generate", "info", "train"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -2,15 +2,18 @@
 
 from d4rt.geometry.camera import pixel_to_uv, project, unproject_depth, uv_to_pixel
 from d4rt.geometry.transforms import apply_transform, invert_rigid, rotation_about_axis
+from d4rt.geometry.umeyama import Similarity, umeyama
 from d4rt.geometry.view import View
 
 __all__ = [
+    "Similarity",
     "View",
     "apply_transform",
     "invert_rigid",
     "pixel_to_uv",
     "project",
     "rotation_about_axis",
+    "umeyama",
     "unproject_depth",
     "uv_to_pixel",
 ]

@@ -22,6 +22,7 @@ from d4rt.errors import UserError
 from d4rt.model.decoder import QueryDecoder, SceneKV
 from d4rt.model.encoder import VideoEncoder
 from d4rt.model.inputs import (
+    as_tensor,
     check_aspect_ratio,
     check_queries,
     check_video,
@@ -105,7 +106,7 @@ class D4RT(nn.Module):
             ``normals (B, N, 3)`` (unit), ``confidence (B, N)`` (positive).
         """
         if check_inputs:
-            self._check_batch(video, queries, aspect_ratio, patch_video)
+            video, queries, aspect_ratio, patch_video = self._check_batch(video, queries, aspect_ratio, patch_video)
         if patch_video is None:
             if self.config.rgb_patch_source == "original" and self.config.rgb_patch_size > 0:
                 raise UserError("config rgb_patch_source='original' needs patch_video (the original frames)")
@@ -113,8 +114,14 @@ class D4RT(nn.Module):
         tokens = self.encode_tokens(video, aspect_ratio)
         return self.decode(queries, self.decoder.project_scene(tokens), patch_video)
 
-    def _check_batch(self, video, queries, aspect_ratio, patch_video) -> None:
+    def _check_batch(self, video, queries, aspect_ratio, patch_video):
+        """The training inputs as checked tensors, or a :class:`UserError` naming the problem."""
         cfg = self.config
+        device = next(self.parameters()).device
+        for name, value in (("video", video), ("queries", queries), ("patch_video", patch_video)):
+            where = None if value is None else as_tensor(value, name).device
+            if where is not None and where != device:
+                raise UserError(f"{name} is on {where} but the model is on {device}; move the batch first")
         video = check_video(video, cfg.max_frames, batched=True)
         if not video.dtype.is_floating_point:
             raise UserError(f"training video must be float in [0, 1], got {video.dtype}")
@@ -125,12 +132,13 @@ class D4RT(nn.Module):
         queries = check_queries(queries, t, batched=True)
         if queries.shape[0] != b:
             raise UserError(f"queries batch {queries.shape[0]} does not match video batch {b}")
-        check_aspect_ratio(aspect_ratio, b)
+        aspect_ratio = check_aspect_ratio(aspect_ratio, b)
         if patch_video is not None:
             patch_video = check_video(patch_video, cfg.max_frames, batched=True)
             if patch_video.shape[:2] != (b, t):
                 raise UserError(f"patch_video must have the video's batch and frames {(b, t)}, "
                                 f"got {tuple(patch_video.shape[:2])}")
+        return video, queries, aspect_ratio, patch_video
 
     # ------------------------------------------------------------------------------------ inference
     @torch.no_grad()
@@ -149,17 +157,30 @@ class D4RT(nn.Module):
         video = check_video(video, self.config.max_frames)
         frames, height, width, _ = video.shape
         device = next(self.parameters()).device
-        video = video.to(device)
-        resized = encoder_frames(video, self.config.image_size)[None]
+        resized = encoder_frames(video, self.config.image_size, device)[None]
         aspect = torch.tensor([width / height], device=device)
         tokens = self.encode_tokens(resized, aspect)
         if self.config.rgb_patch_size == 0:
             patch_video = None
         elif self.config.rgb_patch_source == "original":
-            patch_video = video[None]
+            # Contiguous once here: patch sampling flattens the frames for every query chunk, which would
+            # otherwise copy a permuted or sliced clip again and again.
+            patch_video = video.to(device).contiguous()[None]
         else:
             patch_video = resized
         return EncodedScene(self, tokens, frames, height, width, patch_video)
+
+    def reconstruct(self, video: Any, *, window: int | None = None, overlap: int | None = None, **options):
+        """Every 4D output of a video through queries: a :class:`d4rt.reconstruction.Reconstruction`.
+
+        Videos longer than ``max_frames`` (or ``window``) are encoded window by window (overlapping by
+        ``overlap`` frames) and stitched by Sim(3); ``options`` go to ``Reconstruction``.
+        """
+        # Imported here: the reconstruction layer sits above the model and imports it, not vice versa.
+        from d4rt.reconstruction import ModelSource, Reconstruction
+
+        return Reconstruction(ModelSource(self, video, max_window=window), video, window=window, overlap=overlap,
+                              **options)
 
     # ------------------------------------------------------------------------------------ weights
     def save_pretrained(self, directory: str | Path) -> Path:
@@ -181,8 +202,7 @@ class D4RT(nn.Module):
         config, state_dict = read_checkpoint(directory, device)
         with torch.device(device):
             model = cls(config)
-        check_state_dict(model, state_dict, f"checkpoint {directory}")
-        model.load_state_dict(state_dict, strict=True)
+        model.load_checked_state_dict(state_dict, f"checkpoint {directory}")
         return model.eval()
 
     def load_checked_state_dict(self, state_dict: dict[str, torch.Tensor], source: str = "state dict") -> None:

@@ -11,10 +11,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.utils.checkpoint import checkpoint
 
 from d4rt.config import D4RTConfig
-from d4rt.model.layers import MLP, CrossAttention
+from d4rt.model.layers import MLP, CrossAttention, run_block
 
 # Channels of the raw head output, in order (13 numbers per query, as in the paper).
 HEAD_CHANNELS = {"points": 3, "uv": 2, "visibility_logit": 1, "motion": 3, "normals": 3, "confidence": 1}
@@ -40,10 +39,13 @@ class CrossAttentionBlock(nn.Module):
 class PredictionHeads(nn.Module):
     """Final LayerNorm and one linear head per output, then each output's activation.
 
-    ``forward(x: (B, N, dim)) -> dict`` of (B, N, ...) tensors:
+    ``forward(x: (B, N, dim)) -> dict`` of (B, N, ...) float32 tensors:
         points (3): raw. uv (2): raw (a point may leave the image). visibility_logit (1 -> squeezed) and
         visibility = sigmoid(logit). motion (3): raw. normals (3): L2-normalised.
         confidence (1 -> squeezed): positive, softplus or 1 + exp (config ``confidence_activation``).
+
+    Computed in float32 whatever the autocast or parameter dtype: 13 numbers per query cost nothing, while
+    bf16's 8-bit mantissa would round a depth of 10 to steps of 1/16 and quantise every loss input.
     """
 
     def __init__(self, dim: int, eps: float, confidence_activation: str):
@@ -53,10 +55,12 @@ class PredictionHeads(nn.Module):
         self.confidence_activation = confidence_activation
 
     def forward(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
-        x = self.norm(x)
-        raw = {name: head(x) for name, head in self.heads.items()}
+        with torch.autocast(device_type=x.device.type, enabled=False):
+            x = F.layer_norm(x.float(), self.norm.normalized_shape, self.norm.weight.float(),
+                             self.norm.bias.float(), self.norm.eps)
+            raw = {name: F.linear(x, head.weight.float(), head.bias.float()) for name, head in self.heads.items()}
         logit = raw["visibility_logit"].squeeze(-1)
-        conf = raw["confidence"].squeeze(-1).float()
+        conf = raw["confidence"].squeeze(-1)
         if self.confidence_activation == "softplus":
             confidence = F.softplus(conf) + 1e-6  # strictly positive: the loss takes log(c)
         else:
@@ -67,7 +71,7 @@ class PredictionHeads(nn.Module):
             "visibility": torch.sigmoid(logit),
             "visibility_logit": logit,
             "motion": raw["motion"],
-            "normals": F.normalize(raw["normals"].float(), dim=-1, eps=1e-6),
+            "normals": F.normalize(raw["normals"], dim=-1, eps=1e-6),
             "confidence": confidence,
         }
 
@@ -94,10 +98,10 @@ class QueryDecoder(nn.Module):
         return [block.attn.project_context(tokens) for block in self.blocks]
 
     def forward(self, query_tokens: torch.Tensor, scene_kv: SceneKV) -> dict[str, torch.Tensor]:
+        """``query_tokens: (B, N, decoder_dim)``, ``scene_kv`` from :meth:`project_scene` -> dict of
+        ``(B, N, ...)`` outputs (see :class:`PredictionHeads`)."""
+        recompute = self.config.gradient_checkpointing and self.training
         x = query_tokens
-        for block, (keys, values) in zip(self.blocks, scene_kv):
-            if self.config.gradient_checkpointing and self.training and torch.is_grad_enabled():
-                x = checkpoint(block, x, keys, values, use_reentrant=False)
-            else:
-                x = block(x, keys, values)
+        for block, (keys, values) in zip(self.blocks, scene_kv, strict=True):
+            x = run_block(block, x, keys, values, recompute=recompute)
         return self.heads(x)

@@ -12,10 +12,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.utils.checkpoint import checkpoint
 
 from d4rt.config import D4RTConfig
-from d4rt.model.layers import SelfAttentionBlock, sincos_1d, sincos_2d
+from d4rt.model.layers import SelfAttentionBlock, run_block, sincos_1d, sincos_2d
 
 
 class TubeletEmbedding(nn.Module):
@@ -38,7 +37,7 @@ class TubeletEmbedding(nn.Module):
         k, p = self.tubelet_frames, self.patch_size
         x = video.reshape(b, t // k, k, h // p, p, w // p, p, c)
         x = x.permute(0, 1, 3, 5, 7, 2, 4, 6)  # (B, T', H', W', C, k, p, p)
-        return self.proj(x.flatten(4))
+        return self.proj(x.flatten(4).to(self.proj.weight.dtype))  # float32 pixels into a bf16 model too
 
 
 class SpaceTimePositions(nn.Module):
@@ -111,6 +110,4 @@ class VideoEncoder(nn.Module):
         return self.norm(x)
 
     def _run(self, block: nn.Module, x: torch.Tensor) -> torch.Tensor:
-        if self.config.gradient_checkpointing and self.training and torch.is_grad_enabled():
-            return checkpoint(block, x, use_reentrant=False)
-        return block(x)
+        return run_block(block, x, recompute=self.config.gradient_checkpointing and self.training)

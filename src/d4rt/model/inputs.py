@@ -69,10 +69,11 @@ def resize_frames(video: torch.Tensor, size: int) -> torch.Tensor:
     return x.permute(0, 2, 3, 1).contiguous()
 
 
-def encoder_frames(video: torch.Tensor, size: int, frames_per_step: int = 8) -> torch.Tensor:
-    """``(T, H, W, 3)`` uint8 or float -> ``(T, size, size, 3)`` float32 in [0, 1], a few frames at a time
-    so a long high-resolution clip never exists as a full float copy."""
-    return torch.cat([resize_frames(to_unit_float(video[i:i + frames_per_step]), size)
+def encoder_frames(video: torch.Tensor, size: int, device: torch.device, frames_per_step: int = 8) -> torch.Tensor:
+    """``(T, H, W, 3)`` uint8 or float -> ``(T, size, size, 3)`` float32 in [0, 1] on ``device``, a few frames
+    at a time, so a long high-resolution clip never exists as a full float copy (nor, when it lives on
+    the CPU, as a full copy on the device)."""
+    return torch.cat([resize_frames(to_unit_float(video[i:i + frames_per_step].to(device)), size)
                       for i in range(0, video.shape[0], frames_per_step)])
 
 

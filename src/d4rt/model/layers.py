@@ -15,6 +15,7 @@ import math
 import torch
 import torch.nn.functional as F
 from torch import nn
+from torch.utils.checkpoint import checkpoint
 
 
 def split_heads(x: torch.Tensor, heads: int) -> torch.Tensor:
@@ -105,6 +106,14 @@ class SelfAttentionBlock(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         x = x + self.attn(self.norm1(x))
         return x + self.mlp(self.norm2(x))
+
+
+def run_block(block: nn.Module, *inputs: torch.Tensor, recompute: bool) -> torch.Tensor:
+    """``block(*inputs)``; with ``recompute`` (and gradients on) its activations are not stored but
+    recomputed in the backward pass (activation checkpointing: memory for compute)."""
+    if recompute and torch.is_grad_enabled():
+        return checkpoint(block, *inputs, use_reentrant=False)
+    return block(*inputs)
 
 
 def sincos_1d(positions: torch.Tensor, dim: int, base: float = 10000.0) -> torch.Tensor:

@@ -95,7 +95,8 @@ class QueryEmbedding(nn.Module):
     def forward(self, queries: torch.Tensor, patch_video: torch.Tensor | None) -> torch.Tensor:
         uv = queries[..., :2]
         t_src, t_tgt, t_cam = (queries[..., i].round().long() for i in (2, 3, 4))
-        token = self.fourier_proj(fourier_features(uv, self.frequencies))
+        # Features in float32 (phase precision), then the projection's own dtype (bf16 for a bf16 model).
+        token = self.fourier_proj(fourier_features(uv, self.frequencies).to(self.fourier_proj.weight.dtype))
         token = token + self.time_src(t_src) + self.time_tgt(t_tgt) + self.time_cam(t_cam)
         if self.patch_proj is not None:
             if patch_video is None:

@@ -21,6 +21,11 @@ if TYPE_CHECKING:
 OUTPUT_KEYS = ("points", "uv", "visibility", "motion", "normals", "confidence")
 
 
+def autocast_dtype(device: torch.device) -> torch.dtype | None:
+    """The dtype autocast computes in on ``device`` right now, or None when autocast is off there."""
+    return torch.get_autocast_dtype(device.type) if torch.is_autocast_enabled(device.type) else None
+
+
 class EncodedScene:
     """The Global Scene Representation of one clip, with the inputs queries need.
 
@@ -44,18 +49,25 @@ class EncodedScene:
         self.aspect_ratio = width / height
         self.patch_video = patch_video
         self._kv: SceneKV | None = None
+        self._kv_dtype: torch.dtype | None = None
 
     def scene_kv(self, cache: bool = True) -> SceneKV:
-        """Per-decoder-layer keys and values of the scene tokens; computed once when ``cache``."""
+        """Per-decoder-layer keys and values of the scene tokens; computed once when ``cache``.
+
+        The cache belongs to the autocast dtype it was projected under (None outside autocast): keys made
+        under bf16 autocast are bf16, and a later float32 query would otherwise meet them with a dtype
+        error (or, cast up, with answers that differ from an uncached decode).
+        """
         if not cache:
             return self.model.decoder.project_scene(self.tokens)
-        if self._kv is None:
-            self._kv = self.model.decoder.project_scene(self.tokens)
+        dtype = autocast_dtype(self.tokens.device)
+        if self._kv is None or self._kv_dtype != dtype:
+            self._kv, self._kv_dtype = self.model.decoder.project_scene(self.tokens), dtype
         return self._kv
 
     def clear_cache(self) -> None:
         """Drop the cached keys/values (they are rebuilt on the next query)."""
-        self._kv = None
+        self._kv, self._kv_dtype = None, None
 
     @torch.no_grad()
     def query(self, queries: Any, chunk_size: int | None = None, cache_kv: bool | None = None) -> dict[str, torch.Tensor]:
@@ -80,7 +92,7 @@ class EncodedScene:
             - ``visibility (N,)``: probability that the point is visible in frame t_tgt.
             - ``motion (N, 3)``: the point's 3D displacement from time t_src to t_tgt, in the camera
               coordinates of t_cam.
-            - ``normals (N, 3)``: unit surface normal, camera coordinates of t_cam.
+            - ``normals (N, 3)``: unit surface normal at time t_tgt, camera coordinates of t_cam.
             - ``confidence (N,)``: positive confidence of ``points`` (higher is more certain).
         """
         queries = check_queries(queries, self.num_frames)
@@ -92,17 +104,12 @@ class EncodedScene:
         cache = self.model.config.cache_scene_kv if cache_kv is None else bool(cache_kv)
 
         outputs: dict[str, list[torch.Tensor]] = {key: [] for key in OUTPUT_KEYS}
-        for start in range(0, queries.shape[0], chunk):
+        # No queries still run one (empty) chunk, so the empty answers have the usual shapes and dtypes.
+        for start in range(0, max(queries.shape[0], 1), chunk):
             answer = self.model.decode(queries[None, start:start + chunk], self.scene_kv(cache), self.patch_video)
             for key in OUTPUT_KEYS:
                 outputs[key].append(answer[key][0])
-        if queries.shape[0] == 0:
-            return self._empty()
         return {key: torch.cat(parts) for key, parts in outputs.items()}
-
-    def _empty(self) -> dict[str, torch.Tensor]:
-        widths = {"points": 3, "uv": 2, "visibility": None, "motion": 3, "normals": 3, "confidence": None}
-        return {key: torch.zeros((0,) if w is None else (0, w), device=self.tokens.device) for key, w in widths.items()}
 
     def __repr__(self) -> str:
         return (f"EncodedScene(frames={self.num_frames}, original={self.width}x{self.height}, "

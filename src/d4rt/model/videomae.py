@@ -103,7 +103,7 @@ def resize_patch_kernel(weight: torch.Tensor, size: int) -> torch.Tensor:
     p = weight.shape[-1]
     if p == size:
         return weight
-    basis = torch.eye(p * p, dtype=torch.float64).reshape(p * p, 1, p, p)
+    basis = torch.eye(p * p, dtype=torch.float64, device=weight.device).reshape(p * p, 1, p, p)
     resized = F.interpolate(basis, size=(size, size), mode="bilinear", align_corners=False, antialias=size < p)
     resize_matrix = resized.reshape(p * p, size * size).T  # B: (size^2, p^2)
     solve = torch.linalg.pinv(resize_matrix.T)  # (size^2, p^2)
@@ -176,7 +176,7 @@ def _convert_block(index: int, params: dict[str, torch.Tensor], report: Conversi
     width = params["attn.qkv.weight"].shape[1]
     for bias in ("attn.q_bias", "attn.v_bias"):
         if bias not in params:  # a model built with qkv_bias=False: its biases are exactly zero
-            params[bias] = torch.zeros(width, dtype=params["attn.qkv.weight"].dtype)
+            params[bias] = params["attn.qkv.weight"].new_zeros(width)
             report.notes.append(f"blocks.{index}.{bias} absent in checkpoint, set to 0")
     unknown = set(params) - _BLOCK_PARAMS
     if unknown:

@@ -6,7 +6,6 @@ naming the mismatched keys; nothing is loaded partially (no ``strict=False``).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import torch
@@ -47,10 +46,7 @@ def read_checkpoint(directory: str | Path, device: str | torch.device = "cpu") -
     for path in (config_path, weights_path):
         if not path.is_file():
             raise UserError(f"checkpoint {directory} has no {path.name}")
-    try:
-        config = D4RTConfig.from_dict(json.loads(config_path.read_text()))
-    except json.JSONDecodeError as err:
-        raise UserError(f"{config_path} is not valid JSON: {err}") from None
+    config = D4RTConfig.load(config_path)
     try:
         tensors = load_file(str(weights_path), device=str(device))
     except (SafetensorError, OSError) as err:

@@ -94,6 +94,15 @@ class Clip:
                                            self.cam_to_world, self.object_to_world)
         return self._oracle
 
+    def reconstruction(self, *, window: int | None = None, overlap: int | None = None, **options):
+        """The query recipes over this clip's exact oracle: a :class:`d4rt.reconstruction.Reconstruction`
+        whose depth, cameras, tracks and point clouds are ground truth (``window`` splits the clip into
+        overlapping windows, to test long-video stitching exactly)."""
+        from d4rt.reconstruction import AnswererSource, Reconstruction  # the layer above this one
+
+        return Reconstruction(AnswererSource(self.oracle, max_window=window), self.rgb, window=window,
+                              overlap=overlap, **options)
+
     # ---------------------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> Path:
         """Write the clip as one compressed npz (atomically: write then rename)."""

@@ -25,7 +25,8 @@ import torch
 from d4rt.errors import UserError
 from d4rt.geometry.camera import pixel_rays, project, uv_to_pixel
 from d4rt.geometry.view import View
-from d4rt.synthetic.raytrace import Hits, SceneTracer, _rotate
+from d4rt.geometry.transforms import apply_rotation, apply_transform
+from d4rt.synthetic.raytrace import Hits, SceneTracer
 from d4rt.synthetic.scene import SceneDescription
 
 QUERY_CHUNK = 1 << 16
@@ -108,13 +109,13 @@ class _PoseOracle(Oracle):
         x_src, n_src, obj, valid = self._surface_at_source(uv, t_src)
         # Rigid motion of the point's body from t_src to t_tgt: T_tgt @ T_src^-1.
         motion = self.object_to_world[t_tgt, obj] @ self.world_to_object[t_src, obj]
-        x_tgt = _apply(motion, x_src)
-        n_tgt = _rotate(motion[:, :3, :3], n_src)
+        x_tgt = apply_transform(motion, x_src)
+        n_tgt = apply_rotation(motion[:, :3, :3], n_src)
         to_cam = self.world_to_cam[t_cam]
-        points = _apply(to_cam, x_tgt)
-        points_src = _apply(to_cam, x_src)
-        normals = _rotate(to_cam[:, :3, :3], n_tgt)
-        cam_tgt = _apply(self.world_to_cam[t_tgt], x_tgt)
+        points = apply_transform(to_cam, x_tgt)
+        points_src = apply_transform(to_cam, x_src)
+        normals = apply_rotation(to_cam[:, :3, :3], n_tgt)
+        cam_tgt = apply_transform(self.world_to_cam[t_tgt], x_tgt)
         xy, z = project(cam_tgt, self.intrinsics[t_tgt])
         in_front = z > 1e-9
         uv_tgt = torch.stack([(xy[:, 0] + 0.5) / self.width, (xy[:, 1] + 0.5) / self.height], 1)
@@ -149,7 +150,7 @@ class AnalyticOracle(_PoseOracle):
 
     def _cast(self, xy, frames):
         c2w = self.cam_to_world[frames]
-        dirs = _rotate(c2w[:, :3, :3], pixel_rays(xy, self.intrinsics[frames]))  # camera z = 1: t is depth
+        dirs = apply_rotation(c2w[:, :3, :3], pixel_rays(xy, self.intrinsics[frames]))  # camera z = 1: t is depth
         origins = c2w[:, :3, 3]
         return origins, dirs, self.tracer.trace_rays(frames, origins, dirs)
 
@@ -191,8 +192,8 @@ class ArrayOracle(_PoseOracle):
         centre = torch.stack([col, row], 1).to(torch.float64)
         x_cam = pixel_rays(centre, self.intrinsics[t_src]) * torch.where(valid, d, torch.ones_like(d))[:, None]
         c2w = self.cam_to_world[t_src]
-        world = _apply(c2w, x_cam)
-        normal = _rotate(c2w[:, :3, :3], self.normals[t_src, row, col])
+        world = apply_transform(c2w, x_cam)
+        normal = apply_rotation(c2w[:, :3, :3], self.normals[t_src, row, col])
         return world, normal, self.object_ids[t_src, row, col], valid
 
     def _visible(self, xy, z, obj, t_tgt, world_point):
@@ -220,7 +221,3 @@ class ViewOracle(Oracle):
         out["uv"] = uv
         out["visibility"] = out["visibility"] * inside.to(out["visibility"].dtype)
         return out
-
-
-def _apply(transform: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    return _rotate(transform[..., :3, :3], points) + transform[..., :3, 3]

@@ -5,6 +5,9 @@ A ``SceneTracer`` holds, on one device and dtype, every body's world-to-canonica
 frame. ``trace_grid`` casts whole frames (bodies culled to their projected bounding boxes),
 ``trace_rays`` casts arbitrary rays each tagged with its frame (bodies culled by a bounding-sphere
 test), and ``surface`` turns hits into world points, normals and body-frame texture coordinates.
+
+Inside, vectors and per-ray matrices are kept as contiguous component planes (a (3, N) tensor for N
+vectors, (12, N) for N 3x4 maps): elementwise work on (N, 3) rows is several times slower on the CPU.
 """
 
 from __future__ import annotations
@@ -14,10 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from d4rt.geometry.transforms import apply_rotation
 from d4rt.synthetic.scene import SceneDescription
 from d4rt.synthetic.shapes import canonical_normal, intersect
 
 CURVED = ("sphere", "cylinder", "cone", "outdoor")
+GRAZING_COS = 0.5  # plane hits of rays within 60 degrees of grazing are refined in float64
 
 
 @dataclass
@@ -49,19 +54,10 @@ class SceneTracer:
         # float32 precise: folding it into an offset would cancel large terms for distant bodies.
         lin = np.swapaxes(rot, -1, -2) / scale[None, :, :, None]
         to_canon = np.concatenate([lin, trans[..., None]], -1)  # (T, K, 3, 4)
-        # One contiguous (T, ...) table per body: per-ray rows are gathered with index_select, far
-        # cheaper than advanced indexing into (T, K, ...) arrays. float64 copies give exact depths on
-        # curved bodies (see ``surface``).
-        def tables(array, dtype_):
-            return [torch.as_tensor(np.ascontiguousarray(array[:, k]), dtype=dtype_, device=self.device)
-                    for k in range(scene.num_bodies)]
-
-        self._canon = tables(to_canon, dtype)  # world -> canonical primitive frame, (T, 3, 4)
-        self._canon64 = tables(to_canon, torch.float64)
-        self._rotation = tables(rot, dtype)  # body -> world rotation, (T, 3, 3)
-        self._translation = tables(trans, dtype)  # body origin in the world, (T, 3)
+        # Per-body tables in the tracing dtype and in float64 (exact ground truth where float32 is
+        # ill-conditioned, see ``surface``).
+        self._tables = {dt: _BodyTables(to_canon, rot, trans, scale, dt, self.device) for dt in {dtype, torch.float64}}
         self.translation = torch.as_tensor(trans, dtype=dtype, device=self.device)  # (T, K, 3)
-        self.scale = torch.as_tensor(scale, dtype=dtype, device=self.device)  # (K, 3) half-extents
         self.radius = [b.bounding_radius for b in scene.bodies]
 
     # ---------------------------------------------------------------------------------------------
@@ -75,7 +71,9 @@ class SceneTracer:
         Returns Hits of shape (F, H, W).
         """
         f, h, w, _ = dirs.shape
-        planes = [c.contiguous() for c in dirs.unbind(-1)]  # component planes: faster elementwise ops
+        tables = self._tables[self.dtype]
+        planes = [c.contiguous() for c in dirs.unbind(-1)]
+        o_planes = [c.contiguous() for c in origins.unbind(-1)]
         best_t = torch.full((f, h, w), float("inf"), dtype=self.dtype, device=self.device)
         best_obj = torch.zeros((f, h, w), dtype=torch.uint8, device=self.device)
         best_face = torch.zeros((f, h, w), dtype=torch.uint8, device=self.device)
@@ -88,48 +86,47 @@ class SceneTracer:
                     continue
             else:
                 x0, y0, x1, y1 = 0, 0, w, h
-            a = rows(self._canon[k], frames)  # (F, 3, 4)
-            o_c = _affine(a, origins)  # per frame
-            o_c = tuple(c[:, None, None] for c in o_c)
-            d_block = [c[:, y0:y1, x0:x1] for c in planes]
-            d_c = _linear(a[:, None, None], d_block)
+            a = tables.canon[k].index_select(1, frames)  # (12, F): one map per frame
+            o_c = tuple(c[:, None, None] for c in _affine(a, o_planes))
+            d_c = _linear(a[:, :, None, None], [c[:, y0:y1, x0:x1] for c in planes])
             t, face = intersect(body.shape, o_c, d_c, t_min, body.r_top)
             tb = best_t[:, y0:y1, x0:x1]
             nearer = t < tb
             tb.copy_(torch.where(nearer, t, tb))
-            ob = best_obj[:, y0:y1, x0:x1]
-            ob.masked_fill_(nearer, k)
+            best_obj[:, y0:y1, x0:x1].masked_fill_(nearer, k)
             fb = best_face[:, y0:y1, x0:x1]
             fb.copy_(torch.where(nearer, face, fb))
         return Hits(best_t, best_obj, best_face)
 
     def trace_rays(self, frames: torch.Tensor, origins: torch.Tensor, dirs: torch.Tensor, t_min: float = 1e-4,
-                   include_environment: bool = True, t_max: torch.Tensor | None = None) -> Hits:
+                   include_environment: bool = True, t_max: torch.Tensor | None = None,
+                   dtype: torch.dtype | None = None) -> Hits:
         """Cast arbitrary rays. frames: (N,) long; origins, dirs: (N, 3). Returns Hits of shape (N,).
 
         ``t_max`` (N,) skips bodies whose bounding sphere starts beyond it (e.g. shadow rays).
+        ``dtype``: float64 casts exactly like the ground-truth oracle (default: the tracer's dtype).
         """
-        n = dirs.shape[0]
-        best_t = torch.full((n,), float("inf"), dtype=self.dtype, device=self.device)
+        dtype = dtype or self.dtype
+        tables = self._tables[dtype]
+        o_all, d_all = origins.to(dtype).T.contiguous(), dirs.to(dtype).T.contiguous()  # (3, N)
+        n = o_all.shape[1]
+        best_t = torch.full((n,), float("inf"), dtype=dtype, device=self.device)
         best_obj = torch.zeros((n,), dtype=torch.uint8, device=self.device)
         best_face = torch.zeros((n,), dtype=torch.uint8, device=self.device)
         for k, body in enumerate(self.scene.bodies):
             if k == 0 and not include_environment:
                 continue
             if k == 0:
-                idx = None
+                fr, o, d, cur = frames, o_all, d_all, best_t
             else:
-                idx = self._sphere_candidates(k, frames, origins, dirs, t_min, t_max)
+                idx = self._sphere_candidates(tables.translation[k], k, frames, o_all, d_all, t_min, t_max)
                 if idx.numel() == 0:
                     continue
-            fr = frames if idx is None else frames[idx]
-            o = origins if idx is None else origins[idx]
-            d = dirs if idx is None else dirs[idx]
-            a = rows(self._canon[k], fr)
+                fr, o, d, cur = frames[idx], o_all[:, idx], d_all[:, idx], best_t[idx]
+            a = tables.canon[k].index_select(1, fr)
             t, face = intersect(body.shape, _affine(a, o), _linear(a, d), t_min, body.r_top)
-            cur = best_t if idx is None else best_t[idx]
             nearer = t < cur
-            if idx is None:
+            if k == 0:
                 best_t = torch.where(nearer, t, best_t)
                 best_obj = best_obj.masked_fill(nearer, k)
                 best_face = torch.where(nearer, face, best_face)
@@ -140,11 +137,12 @@ class SceneTracer:
                 best_face[sel] = face[nearer]
         return Hits(best_t, best_obj, best_face)
 
-    def _sphere_candidates(self, k, frames, origins, dirs, t_min, t_max):
-        """Indices of rays that pass within body k's bounding sphere (ahead of t_min, before t_max)."""
-        centre = rows(self._translation[k], frames)
-        cx, cy, cz = (centre[:, i] - origins[:, i] for i in range(3))
-        dx, dy, dz = dirs[:, 0], dirs[:, 1], dirs[:, 2]
+    def _sphere_candidates(self, translation, k, frames, origins, dirs, t_min, t_max):
+        """Indices of rays (origins, dirs: (3, N) planes) passing within body k's bounding sphere, ahead
+        of t_min and before t_max; translation: (3, T) body k's origin per frame."""
+        centre = translation.index_select(1, frames)
+        cx, cy, cz = (centre[i] - origins[i] for i in range(3))
+        dx, dy, dz = dirs
         dd = dx * dx + dy * dy + dz * dz
         cd = cx * dx + cy * dy + cz * dz
         tc = cd / dd  # closest approach along the ray
@@ -159,46 +157,67 @@ class SceneTracer:
 
     # ---------------------------------------------------------------------------------------------
     def surface(self, frames: torch.Tensor, origins: torch.Tensor, dirs: torch.Tensor, hits: Hits,
-                exact_depth: bool = False) -> dict:
-        """Surface data of hit rays, in the tracer's dtype. frames: (M,) long; origins, dirs: (M, 3)
-        (pass them in float64 when ``exact_depth``); hits: (M,).
+                exact_depth: bool = False, dtype: torch.dtype | None = None) -> dict:
+        """Surface data of hit rays. frames: (M,) long; origins, dirs: (M, 3) (pass them in float64 when
+        ``exact_depth``); hits: (M,). Computed in ``dtype`` (default: the tracer's).
 
         Returns ``t (M,)``, ``world_point (M,3)``, ``world_normal (M,3)`` (unit, facing the ray's side)
         and ``local_point (M,3)`` (body frame, metres: where textures live). With ``exact_depth``, also
-        ``t_exact (M,)`` in float64: the hit decides WHICH body a ray sees, and rays on curved bodies
-        are intersected again with that body alone in float64. (Their float32 roots lose digits to
-        cancellation when the camera is many radii away; plane hits keep float32's relative precision.)
+        ``t_exact (M,)`` in float64 and ``lost (M,)``: tracing decided WHICH body a ray sees; the rays
+        whose float32 hit is ill-conditioned are intersected again with that body alone in float64 (all
+        rays on curved bodies, whose roots lose digits to cancellation when the camera is many radii
+        away, and grazing rays on planes, whose hits amplify rounding). ``lost`` marks rays whose body
+        the float64 ray misses altogether (silhouettes): the caller must cast them again in float64.
         """
-        dt = self.dtype
-        o, d = origins.to(dt), dirs.to(dt)
-        t = hits.t.to(dt)
+        dt = dtype or self.dtype
+        tables = self._tables[dt]
+        refine = exact_depth and dt != torch.float64
+        o_all, d_all = origins.to(dt).T.contiguous(), dirs.to(dt).T.contiguous()  # (3, M)
+        t = hits.t.to(dt).clone()
         t_exact = hits.t.to(torch.float64).clone() if exact_depth else None
-        local = torch.empty_like(o)
-        normal = torch.empty_like(o)
+        lost = torch.zeros_like(hits.t, dtype=torch.bool)
+        local = torch.empty_like(o_all)
+        normal = torch.empty_like(o_all)
         obj = hits.obj.long()
         for k in present_ids(obj):
             body = self.scene.bodies[k]
             idx = torch.nonzero(obj == k).squeeze(1)
             fr = frames[idx]
-            if exact_depth and body.shape in CURVED and dt != torch.float64:
-                a64 = rows(self._canon64[k], fr)
-                o64, d64 = origins[idx].to(torch.float64), dirs[idx].to(torch.float64)
-                t_ref, _ = intersect(body.shape, _affine(a64, o64), _linear(a64, d64), 0.0, body.r_top)
-                # A grazing float32 hit may vanish in float64: keep the traced one then.
-                t_exact[idx] = torch.where(torch.isfinite(t_ref), t_ref, t_exact[idx])
-                t[idx] = t_exact[idx].to(dt)
-            a = rows(self._canon[k], fr)
-            o_c, d_c = _affine(a, o[idx]), _linear(a, d[idx])
+            if refine and body.shape in CURVED:
+                self._refine(k, idx, frames, origins, dirs, t, t_exact, lost)
+            a = tables.canon[k].index_select(1, fr)
+            d_k = d_all[:, idx]
+            o_c, d_c = _affine(a, o_all[:, idx]), _linear(a, d_k)
             t_k = t[idx]
-            p_c = torch.stack([oc + t_k * dc for oc, dc in zip(o_c, d_c)], -1)
-            n_local = canonical_normal(body.shape, p_c, hits.face[idx], body.r_top) / self.scale[k]
-            n_world = _rotate(rows(self._rotation[k], fr), n_local)
-            local[idx] = p_c * self.scale[k]
-            normal[idx] = n_world / n_world.norm(dim=-1, keepdim=True)
-        out = {"t": t, "world_point": o + t[:, None] * d, "world_normal": normal, "local_point": local}
+            p_c = torch.stack([oc + t_k * dc for oc, dc in zip(o_c, d_c)])  # (3, m)
+            s = tables.scale[k][:, None]
+            n_local = canonical_normal(body.shape, p_c.T, hits.face[idx], body.r_top).T / s
+            n_world = torch.stack(_rotate(tables.rotation[k].index_select(1, fr), n_local))
+            n_world = n_world / torch.sqrt(_dot(n_world, n_world))
+            local[:, idx] = p_c * s
+            normal[:, idx] = n_world
+            if refine and body.shape not in CURVED:
+                cos = _dot(n_world, d_k).abs() / torch.sqrt(_dot(d_k, d_k))
+                grazing = idx[cos < GRAZING_COS]
+                if grazing.numel():
+                    self._refine(k, grazing, frames, origins, dirs, t, t_exact, lost)
+        if exact_depth and not refine:
+            t_exact = t.to(torch.float64)
+        out = {"t": t, "world_point": (o_all + t * d_all).T, "world_normal": normal.T, "local_point": local.T}
         if exact_depth:
-            out["t_exact"] = t_exact
+            out["t_exact"], out["lost"] = t_exact, lost
         return out
+
+    def _refine(self, k, idx, frames, origins, dirs, t, t_exact, lost) -> None:
+        """Intersect rays ``idx`` with body k alone in float64; update t_exact, t and lost in place."""
+        a64 = self._tables[torch.float64].canon[k].index_select(1, frames[idx])
+        o64, d64 = (x[idx].to(torch.float64).T for x in (origins, dirs))
+        body = self.scene.bodies[k]
+        t_ref, _ = intersect(body.shape, _affine(a64, o64), _linear(a64, d64), 0.0, body.r_top)
+        found = torch.isfinite(t_ref)
+        t_exact[idx] = torch.where(found, t_ref, t_exact[idx])
+        t[idx] = t_exact[idx].to(t.dtype)
+        lost[idx] = ~found
 
     def projected_rects(self, frames: torch.Tensor, cam_to_world: torch.Tensor, intrinsics: torch.Tensor,
                         height: int, width: int, near: float = 1e-3) -> torch.Tensor:
@@ -210,7 +229,7 @@ class SceneTracer:
         """
         centers = self.translation[frames]  # (F, K, 3)
         rot = cam_to_world[:, :3, :3]
-        cc = _rotate(rot.transpose(-1, -2)[:, None], centers - cam_to_world[:, None, :3, 3])  # camera frame
+        cc = apply_rotation(rot.transpose(-1, -2)[:, None], centers - cam_to_world[:, None, :3, 3])  # camera frame
         r = torch.tensor(self.radius, dtype=self.dtype, device=self.device)[None, :, None]
         signs = torch.tensor([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)],
                              dtype=self.dtype, device=self.device)
@@ -231,9 +250,20 @@ class SceneTracer:
         return rect.long()
 
 
-def rows(table: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-    """table[index] along the first axis, through index_select (fast for per-ray gathers)."""
-    return table.index_select(0, index)
+class _BodyTables:
+    """Per-body tables over frames in one dtype, component-major so per-ray gathers are contiguous:
+    canonical maps [L | t] (12, T), body-to-world rotations (9, T), body origins (3, T); and the
+    (K, 3) half-extents."""
+
+    def __init__(self, to_canon, rot, trans, scale, dtype, device):
+        def split(array):  # (T, K, ...) -> per body (prod(...), T)
+            t_count, k_count = array.shape[:2]
+            flat = array.reshape(t_count, k_count, -1)
+            return [torch.as_tensor(np.ascontiguousarray(flat[:, k].T), dtype=dtype, device=device)
+                    for k in range(k_count)]
+
+        self.canon, self.rotation, self.translation = split(to_canon), split(rot), split(trans)
+        self.scale = torch.as_tensor(scale, dtype=dtype, device=device)
 
 
 def present_ids(obj: torch.Tensor) -> list[int]:
@@ -241,20 +271,24 @@ def present_ids(obj: torch.Tensor) -> list[int]:
     return torch.nonzero(torch.bincount(obj.reshape(-1).long())).squeeze(1).tolist()
 
 
-def _linear(a: torch.Tensor, v):
-    """Linear part of (..., 3, 4) maps applied to (..., 3) vectors (or their x, y, z components),
-    returned as x, y, z components."""
-    x, y, z = (v[..., 0], v[..., 1], v[..., 2]) if isinstance(v, torch.Tensor) else v
-    return tuple(a[..., i, 0] * x + a[..., i, 1] * y + a[..., i, 2] * z for i in range(3))
+def _linear(a: torch.Tensor, v) -> tuple:
+    """The linear part L of maps a = [L | t] (12, ...) applied to vectors given as 3 components."""
+    x, y, z = v
+    return tuple(a[4 * i] * x + a[4 * i + 1] * y + a[4 * i + 2] * z for i in range(3))
 
 
-def _affine(a: torch.Tensor, p: torch.Tensor):
-    """Maps [L | t] (..., 3, 4) applied to (..., 3) points as L (p - t), returned as x, y, z components."""
-    x, y, z = (p[..., i] - a[..., i, 3] for i in range(3))
-    return tuple(a[..., i, 0] * x + a[..., i, 1] * y + a[..., i, 2] * z for i in range(3))
+def _affine(a: torch.Tensor, p) -> tuple:
+    """Maps a = [L | t] (12, ...) applied to points given as 3 components: L (p - t)."""
+    x, y, z = (p[i] - a[4 * i + 3] for i in range(3))
+    return tuple(a[4 * i] * x + a[4 * i + 1] * y + a[4 * i + 2] * z for i in range(3))
 
 
-def _rotate(r: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
-    """(..., 3, 3) rotations applied to (..., 3) vectors."""
-    x, y, z = v[..., 0:1], v[..., 1:2], v[..., 2:3]
-    return r[..., :, 0] * x + r[..., :, 1] * y + r[..., :, 2] * z
+def _rotate(r: torch.Tensor, v) -> tuple:
+    """Rotations r (9, ...) (row-major 3x3) applied to vectors given as 3 components."""
+    x, y, z = v
+    return tuple(r[3 * i] * x + r[3 * i + 1] * y + r[3 * i + 2] * z for i in range(3))
+
+
+def _dot(a, b) -> torch.Tensor:
+    """Dot products of vectors given as 3 components each."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]

@@ -14,7 +14,8 @@ import torch
 
 from d4rt.geometry.camera import pixel_rays
 from d4rt.synthetic import textures
-from d4rt.synthetic.raytrace import Hits, SceneTracer, _rotate, present_ids, rows
+from d4rt.geometry.transforms import apply_rotation
+from d4rt.synthetic.raytrace import Hits, SceneTracer, _dot, present_ids
 from d4rt.synthetic.scene import SceneDescription
 
 # Rays per chunk of frames: bounds memory at about 1 GB on any resolution.
@@ -54,7 +55,7 @@ def _render_chunk(tracer, frames, intrinsics, cam_to_world, height, width, aa_sa
     rot = cam_to_world[:, :3, :3]
     # Rays in float64 (exact pixel-centre directions); traced in the tracer's dtype (fast), refined
     # in float64 by ``surface``. Camera z of every direction is 1, so the ray parameter is z-depth.
-    dirs64 = _rotate(rot[:, None, None], pixel_rays(xy[None], intrinsics[:, None, None]))  # (F, H, W, 3)
+    dirs64 = apply_rotation(rot[:, None, None], pixel_rays(xy[None], intrinsics[:, None, None]))  # (F, H, W, 3)
     origins64 = cam_to_world[:, :3, 3]
     rects = tracer.projected_rects(frames, cam_to_world.to(dt), intrinsics.to(dt), height, width)
     hits = tracer.trace_grid(frames, origins64.to(dt), dirs64.to(dt), rects)
@@ -66,11 +67,25 @@ def _render_chunk(tracer, frames, intrinsics, cam_to_world, height, width, aa_sa
     flat_dirs = dirs64.reshape(-1, 3)
     flat_hits = Hits(hits.t.reshape(-1), hits.obj.reshape(-1), hits.face.reshape(-1))
     surf = tracer.surface(flat_frames, flat_origins, flat_dirs, flat_hits, exact_depth=True)
-    normal_cam = _rotate(rot.transpose(-1, -2)[:, None], surf["world_normal"].reshape(f, hw, 3))
+    # Which body a pixel sees is decided in float32; next to a silhouette that decision may differ from
+    # exact arithmetic, so those pixels (and any whose body the float64 ray misses) are cast again in
+    # float64, exactly as the ground-truth oracle casts them.
+    recast = torch.nonzero(_neighbour_changes(hits.obj, hits.face).reshape(-1) | surf["lost"]).squeeze(1)
+    if recast.numel():
+        fr, o, d = flat_frames[recast], flat_origins[recast], flat_dirs[recast]
+        exact_hits = tracer.trace_rays(fr, o, d, dtype=torch.float64)
+        exact = tracer.surface(fr, o, d, exact_hits, exact_depth=True, dtype=torch.float64)
+        flat_hits.t[recast] = exact_hits.t.to(dt)
+        flat_hits.obj[recast] = exact_hits.obj
+        flat_hits.face[recast] = exact_hits.face
+        surf["t_exact"][recast] = exact["t_exact"]
+        for key in ("world_point", "world_normal", "local_point"):
+            surf[key][recast] = exact[key].to(dt)
+    normal_cam = apply_rotation(rot.transpose(-1, -2)[:, None], surf["world_normal"].reshape(f, hw, 3))
     result = {
         "depth": surf["t_exact"].reshape(f, height, width).to(torch.float32),
         "normals": normal_cam.reshape(f, height, width, 3).to(torch.float32),
-        "object_ids": hits.obj,
+        "object_ids": flat_hits.obj.reshape(f, height, width),
     }
     if geometry_only:
         return result
@@ -79,7 +94,7 @@ def _render_chunk(tracer, frames, intrinsics, cam_to_world, height, width, aa_sa
     color = shade(tracer, flat_frames, flat_origins.to(dt), flat_dirs.to(dt), flat_hits, surf, focal)
     color = color.reshape(f, height, width, 3)
     if aa_samples > 1:
-        edges = _edge_pixels(hits, result["normals"])
+        edges = _neighbour_changes(result["object_ids"], flat_hits.face.reshape(f, height, width), result["normals"])
         if edges.any():
             color[edges] = _supersample(tracer, frames, intrinsics.to(dt), cam_to_world.to(dt), edges, aa_samples)
     result["rgb"] = _to_srgb8(color)
@@ -87,43 +102,50 @@ def _render_chunk(tracer, frames, intrinsics, cam_to_world, height, width, aa_sa
 
 
 def shade(tracer: SceneTracer, frames, origins, dirs, hits: Hits, surf: dict, focal: torch.Tensor) -> torch.Tensor:
-    """Linear RGB radiance of hit rays (M, 3). focal: (M,) focal length (px) of each ray's camera."""
+    """Linear RGB radiance of hit rays (M, 3). focal: (M,) focal length (px) of each ray's camera.
+
+    Vectors are handled as three contiguous component planes: dot products over (M, 3) rows are several
+    times slower on the CPU.
+    """
     scene = tracer.scene
     light = scene.light
     dev, dt = tracer.device, tracer.dtype
     point, normal = surf["world_point"], surf["world_normal"]
-    ray_len = dirs.norm(dim=-1)
-    view = -dirs / ray_len[:, None]
-    cos_view = (normal * view).sum(-1).abs().clamp(min=0.2)
+    n = normal.T.contiguous()
+    d = dirs.T.contiguous()
+    ray_len = torch.sqrt(_dot(d, d))
+    view = -d / ray_len
+    cos_view = _dot(n, view).abs().clamp(min=0.2)
     footprint = hits.t * ray_len / focal / cos_view  # width of one pixel on the surface (m)
 
     if light.kind == "directional":
-        to_light = torch.tensor(light.direction, dtype=dt, device=dev).expand_as(point)
+        to_light = torch.tensor(light.direction, dtype=dt, device=dev)[:, None].expand_as(n)
         dist = torch.full_like(hits.t, float("inf"))
         attenuation = torch.ones_like(hits.t)
     else:
-        delta = torch.tensor(light.position, dtype=dt, device=dev) - point
-        dist = delta.norm(dim=-1)
-        to_light = delta / dist[:, None]
+        delta = torch.tensor(light.position, dtype=dt, device=dev)[:, None] - point.T
+        dist = torch.sqrt(_dot(delta, delta))
+        to_light = delta / dist
         attenuation = 1.0 / (1.0 + (dist / light.falloff) ** 2)
-    n_dot_l = (normal * to_light).sum(-1).clamp(min=0.0)
+    n_dot_l = _dot(n, to_light).clamp(min=0.0)
     lit = attenuation * (n_dot_l > 0)
     if scene.shadows:
-        lit = lit * ~_in_shadow(tracer, frames, point, normal, to_light, dist, hits)
+        lit = lit * ~_in_shadow(tracer, frames, point, normal, to_light.T, dist, hits, n_dot_l)
     half = to_light + view
-    half = half / half.norm(dim=-1, keepdim=True).clamp(min=1e-8)
-    n_dot_h = (normal * half).sum(-1).clamp(min=0.0)
+    half = half / torch.sqrt(_dot(half, half)).clamp(min=1e-8)
+    n_dot_h = _dot(n, half).clamp(min=0.0)
     light_color = torch.tensor(light.color, dtype=dt, device=dev)
     ambient = torch.tensor(light.ambient, dtype=dt, device=dev)
 
     out = torch.empty_like(point)
     obj = hits.obj.long()
+    face = hits.face.long()
     for k in present_ids(obj):
         body = scene.bodies[k]
-        in_body = obj == k
-        material_index = hits.face.long() % len(body.materials)
+        in_body = torch.nonzero(obj == k).squeeze(1)
+        material_index = face[in_body] % len(body.materials)
         for m_i, material in enumerate(body.materials):
-            idx = torch.nonzero(in_body & (material_index == m_i)).squeeze(1)
+            idx = in_body if len(body.materials) == 1 else in_body[material_index == m_i]
             if idx.numel() == 0:
                 continue
             alb = textures.albedo(material, surf["local_point"][idx], footprint[idx])
@@ -131,20 +153,23 @@ def shade(tracer: SceneTracer, frames, origins, dirs, hits: Hits, surf: dict, fo
                 out[idx] = alb
                 continue
             diffuse = ambient + light_color * (n_dot_l[idx] * lit[idx])[:, None]
-            spec = material.specular * n_dot_h[idx] ** material.shininess * lit[idx]
-            out[idx] = alb * diffuse + light_color * spec[:, None]
+            if material.specular > 0:
+                spec = material.specular * n_dot_h[idx] ** material.shininess * lit[idx]
+                out[idx] = alb * diffuse + light_color * spec[:, None]
+            else:
+                out[idx] = alb * diffuse
     return out
 
 
-def _in_shadow(tracer, frames, point, normal, to_light, dist, hits) -> torch.Tensor:
-    """Whether a foreground body blocks the light (the environment casts no shadows)."""
+def _in_shadow(tracer, frames, point, normal, to_light, dist, hits, n_dot_l) -> torch.Tensor:
+    """Whether a foreground body blocks the light (the environment casts no shadows). point, normal,
+    to_light: (M, 3); dist, n_dot_l: (M,)."""
     shadowed = torch.zeros_like(hits.t, dtype=torch.bool)
     emissive = torch.zeros_like(shadowed)
     for k, body in enumerate(tracer.scene.bodies):
         if any(m.emissive for m in body.materials):
             emissive |= hits.obj == k  # conservative: emissive bodies are not lit anyway
-    facing = (normal * to_light).sum(-1) > 0
-    idx = torch.nonzero(facing & ~emissive).squeeze(1)
+    idx = torch.nonzero((n_dot_l > 0) & ~emissive).squeeze(1)
     if idx.numel() == 0:
         return shadowed
     eps = 1e-3 * (1.0 + hits.t[idx])
@@ -156,22 +181,24 @@ def _in_shadow(tracer, frames, point, normal, to_light, dist, hits) -> torch.Ten
     return shadowed
 
 
-def _edge_pixels(hits: Hits, normals: torch.Tensor) -> torch.Tensor:
-    """Pixels whose 4-neighbourhood shows another body, another face or a crease: (F, H, W) bool.
+def _neighbour_changes(obj: torch.Tensor, face: torch.Tensor, normals: torch.Tensor | None = None) -> torch.Tensor:
+    """Pixels whose 4-neighbourhood shows another body or face (or, given normals, a crease):
+    (F, H, W) bool.
 
     All primitives are convex, so a depth discontinuity always comes with a change of body or face
     (the room's walls are separate faces): no depth test is needed, and none would misfire on
     grazing planes, whose depth legitimately changes fast from pixel to pixel.
     """
-    edge = torch.zeros_like(hits.t, dtype=torch.bool)
+    edge = torch.zeros_like(obj, dtype=torch.bool)
     for dim in (1, 2):
-        n = hits.t.shape[dim]
+        n = obj.shape[dim]
         a = [slice(None)] * 3
         b = [slice(None)] * 3
         a[dim], b[dim] = slice(0, n - 1), slice(1, n)
         a, b = tuple(a), tuple(b)
-        diff = (hits.obj[a] != hits.obj[b]) | (hits.face[a] != hits.face[b])
-        diff |= (normals[a] * normals[b]).sum(-1) < 0.95
+        diff = (obj[a] != obj[b]) | (face[a] != face[b])
+        if normals is not None:
+            diff |= (normals[a] * normals[b]).sum(-1) < 0.95
         edge[a] |= diff
         edge[b] |= diff
     return edge
@@ -190,8 +217,8 @@ def _supersample(tracer, frames, intrinsics, cam_to_world, edges, n: int) -> tor
     s = oy.shape[0]
     fi_s = fi.repeat_interleave(s)
     xy = torch.stack([(xi.to(dt)[:, None] + ox).reshape(-1), (yi.to(dt)[:, None] + oy).reshape(-1)], -1)
-    pose, k = rows(cam_to_world, fi_s), rows(intrinsics, fi_s)
-    d = _rotate(pose[:, :3, :3], pixel_rays(xy, k))
+    pose, k = cam_to_world.index_select(0, fi_s), intrinsics.index_select(0, fi_s)
+    d = apply_rotation(pose[:, :3, :3], pixel_rays(xy, k))
     o = pose[:, :3, 3]
     fr = frames[fi_s]
     hits = tracer.trace_rays(fr, o, d)

@@ -45,13 +45,18 @@ def _first_positive_root(a, b_half, c, t_min, use_far: bool = False):
     return torch.where(ok, t, _inf_like(t))
 
 
-def intersect_sphere(o: Components, d: Components, t_min: float):
+def _unit_sphere(o: Components, d: Components, t_min: float, far: bool = False) -> torch.Tensor:
+    """Ray parameter of the hit with |p| = 1: the near root (from outside) or the far one (inside)."""
     ox, oy, oz = o
     dx, dy, dz = d
     a = dx * dx + dy * dy + dz * dz
     b = ox * dx + oy * dy + oz * dz
     c = ox * ox + oy * oy + oz * oz - 1.0
-    t = _first_positive_root(a, b, c, t_min)
+    return _first_positive_root(a, b, c, t_min, use_far=far)
+
+
+def intersect_sphere(o: Components, d: Components, t_min: float):
+    t = _unit_sphere(o, d, t_min)
     return t, torch.zeros_like(t, dtype=torch.uint8)
 
 
@@ -148,13 +153,8 @@ def intersect_cone(o: Components, d: Components, t_min: float, r_top: float):
 
 
 def intersect_outdoor(o: Components, d: Components, t_min: float):
-    ox, oy, oz = o
-    dx, dy, dz = d
-    a = dx * dx + dy * dy + dz * dz
-    b = ox * dx + oy * dy + oz * dz
-    c = ox * ox + oy * oy + oz * oz - 1.0
-    t_dome = _first_positive_root(a, b, c, t_min, use_far=True)
-    t_ground = -oz / dz
+    t_dome = _unit_sphere(o, d, t_min, far=True)
+    t_ground = -o[2] / d[2]
     t_ground = torch.where((t_ground > t_min) & (t_ground < t_dome), t_ground, _inf_like(t_ground))
     return _pick(t_ground, t_dome)
 

@@ -1,0 +1,17 @@
+"""Everything from queries: depth, point clouds, 3D tracks, cameras, dense tracking, long videos."""
+
+from d4rt.reconstruction.reconstruction import Reconstruction, plan_windows
+from d4rt.reconstruction.results import Cameras, DenseTracks, Depth, PointCloud, Tracks
+from d4rt.reconstruction.sources import AnswererSource, ModelSource
+
+__all__ = [
+    "AnswererSource",
+    "Cameras",
+    "DenseTracks",
+    "Depth",
+    "ModelSource",
+    "PointCloud",
+    "Reconstruction",
+    "Tracks",
+    "plan_windows",
+]

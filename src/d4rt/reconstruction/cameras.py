@@ -1,0 +1,64 @@
+"""Cameras from query answers (paper Sec. 2.1): intrinsics from points seen in their own frame, and
+relative poses from the same points at the same time expressed in two cameras."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from d4rt.errors import UserError
+from d4rt.geometry.umeyama import umeyama
+
+
+def intrinsics_from_points(points: np.ndarray, uv: np.ndarray, confidence: np.ndarray, height: int, width: int,
+                           method: str = "median") -> np.ndarray:
+    """Pinhole intrinsics of one frame from points seen in it, in its own camera.
+
+    points: (N, 3) camera-frame points of the pixels at normalised positions uv: (N, 2) of the same
+    frame; confidence: (N,) (<= 0 or non-finite: unused). Returns K (3, 3) in pixels for a
+    height x width image.
+
+    - "median" (the paper's recipe): principal point at the image centre, fx = median of
+      z (u - 0.5) / x over the points (and fy likewise), in normalised units, then times W (H). Points
+      close to the central column (row) are left out: there the ratio is 0 / 0.
+    - "lstsq": least squares of x_pix = fx * X / Z + cx (and y likewise), weighted by confidence:
+      exact for an off-centre principal point too (e.g. after a crop).
+    """
+    ok = np.isfinite(points).all(1) & np.isfinite(uv).all(1) & np.isfinite(confidence) & (confidence > 0)
+    ok &= points[:, 2] > 0
+    p, uv, c = points[ok], uv[ok], confidence[ok]
+    if len(p) < 4:
+        raise UserError(f"too few valid points ({len(p)}) to estimate intrinsics")
+    a, b = p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]
+    if method == "median":
+        fx = _median_ratio(uv[:, 0] - 0.5, a) * width
+        fy = _median_ratio(uv[:, 1] - 0.5, b) * height
+        cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
+    elif method == "lstsq":
+        fx, cx = _weighted_line(a, uv[:, 0] * width - 0.5, c)
+        fy, cy = _weighted_line(b, uv[:, 1] * height - 0.5, c)
+    else:
+        raise UserError(f"intrinsics method must be 'median' or 'lstsq', got {method!r}")
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def _median_ratio(offset: np.ndarray, ratio: np.ndarray, min_offset: float = 0.05) -> float:
+    keep = (np.abs(offset) > min_offset) & (np.abs(ratio) > 1e-9)
+    if not keep.any():
+        raise UserError("no points far enough from the image centre to estimate the focal length")
+    return float(np.median(offset[keep] / ratio[keep]))
+
+
+def _weighted_line(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[float, float]:
+    """Slope and intercept of the weighted least-squares line y = m x + q."""
+    sw = np.sqrt(w)
+    design = np.stack([x, np.ones_like(x)], 1) * sw[:, None]
+    (m, q), *_ = np.linalg.lstsq(design, y * sw, rcond=None)
+    return float(m), float(q)
+
+
+def relative_pose(points_here: np.ndarray, points_there: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The rigid transform (4, 4) taking camera-"here" coordinates to camera-"there" coordinates, from
+    the same points (N, 3) at the same time expressed in both cameras, weighted by (N,) weights."""
+    sim = umeyama(torch.from_numpy(points_here), torch.from_numpy(points_there), torch.from_numpy(weights))
+    return sim.matrix().numpy()

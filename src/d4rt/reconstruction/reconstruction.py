@@ -1,0 +1,454 @@
+"""Everything from queries: depth, point clouds, 3D tracks, cameras and dense tracking (paper Sec. 2.1,
+Tab. 1, Alg. 1, App. B and C), over anything that answers queries.
+
+The same recipes run on the trained model's encoded scene and on the synthetic engine's exact oracle;
+on the oracle they must be exact, which tests the recipes independently of how well a model is
+trained.
+
+Long videos are cut into overlapping windows the answerer can take (the model's ``max_frames``). Each
+window has its own world (the camera of its first frame) and, for a model, its own scale; window w is
+mapped into the global world (the camera of frame 0) by a Sim(3) fitted with Umeyama on the most
+confident 85% of the points its overlap shares with window w - 1 (App. B). Every frame is answered by
+the first window that contains it.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from d4rt.errors import UserError
+from d4rt.geometry.transforms import invert_rigid
+from d4rt.geometry.umeyama import Similarity, umeyama
+from d4rt.reconstruction.cameras import intrinsics_from_points, relative_pose
+from d4rt.reconstruction.dense import occupancy_tracking
+from d4rt.reconstruction.results import Cameras, DenseTracks, Depth, PointCloud, Tracks
+from d4rt.reconstruction.sources import as_source
+
+KEYS = ("points", "uv", "visibility", "confidence")
+
+
+class Reconstruction:
+    """The 4D outputs of one video, decoded on demand from an answerer.
+
+    answerer: anything with ``query(queries (N, 5)) -> dict`` and ``num_frames`` (an encoded scene, an
+    oracle), or a window source (``d4rt.reconstruction.sources``). video: (T, H, W, 3) uint8 or float
+    in [0, 1]: the frames the answers refer to; its size is the default output resolution and its
+    colours colour the point cloud. window / overlap: frames per window and frames shared by
+    consecutive windows (default: one window if the answerer takes the whole video, else the
+    answerer's maximum with a quarter of it as overlap). chunk_size: queries per call to the answerer
+    (bounds memory). grid: points per side of the grid used for cameras and window alignment.
+    progress: show progress bars (default: only for long work).
+    """
+
+    def __init__(self, answerer, video, *, window: int | None = None, overlap: int | None = None,
+                 chunk_size: int = 1 << 16, grid: int = 24, align_fraction: float = 0.85,
+                 progress: bool | None = None):
+        self.video = _as_uint8_video(video)
+        self.source = as_source(answerer)
+        self.num_frames, self.height, self.width = self.video.shape[:3]
+        if self.source.num_frames != self.num_frames:
+            raise UserError(f"the answerer covers {self.source.num_frames} frames but the video has {self.num_frames}")
+        if chunk_size < 1 or grid < 2 or not 0 < align_fraction <= 1:
+            raise UserError("chunk_size must be >= 1, grid >= 2 and align_fraction in (0, 1]")
+        self.chunk_size, self.grid, self.align_fraction, self.progress = chunk_size, grid, align_fraction, progress
+        self.windows = plan_windows(self.num_frames, window or self.source.max_window, overlap)
+
+    # ------------------------------------------------------------------------------------------------
+    # Asking
+
+    def _ask(self, w: int, queries: np.ndarray) -> dict:
+        """Answer (N, 5) queries with GLOBAL frame indices in window w; numpy float64 arrays back."""
+        start, stop = self.windows[w]
+        q = np.array(queries, dtype=np.float64, copy=True)
+        if len(q) and (q[:, 2:].min() < start or q[:, 2:].max() >= stop):
+            raise AssertionError("query frames outside their window")  # a bug here, not bad input
+        q[:, 2:] -= start
+        answerer = self.source.window(start, stop)
+        show = self.progress if self.progress is not None else len(q) > 8 * self.chunk_size
+        parts = []
+        for i in tqdm(range(0, max(len(q), 1), self.chunk_size), desc="decoding queries", unit="chunk",
+                      disable=not show, leave=False):
+            out = answerer.query(q[i:i + self.chunk_size])
+            parts.append({k: out[k].detach().cpu().double().numpy() for k in KEYS})
+        return {k: np.concatenate([p[k] for p in parts]) for k in KEYS}
+
+    def _owner(self, frame: int) -> int:
+        """The first window containing the frame."""
+        return next(w for w, (a, b) in enumerate(self.windows) if a <= frame < b)
+
+    def _owned(self, w: int) -> range:
+        start, stop = self.windows[w]
+        return range(self.windows[w - 1][1] if w else start, stop)
+
+    def _grid_uv(self, n: int | None = None) -> np.ndarray:
+        """(n*n, 2) normalised positions of a regular grid of pixel-like cells."""
+        n = n or self.grid
+        c = (np.arange(n) + 0.5) / n
+        u, v = np.meshgrid(c, c)
+        return np.stack([u.ravel(), v.ravel()], 1)
+
+    def _pixel_uv(self, height: int, width: int) -> np.ndarray:
+        """(H*W, 2) normalised positions of every pixel centre of an H x W image, row-major."""
+        ys, xs = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
+        return np.stack([(xs.ravel() + 0.5) / width, (ys.ravel() + 0.5) / height], 1)
+
+    # ------------------------------------------------------------------------------------------------
+    # Window alignment (App. B)
+
+    @cached_property
+    def window_to_world(self) -> list[Similarity]:
+        """Sim(3) from each window's world (camera of its first frame) to the global world (camera 0)."""
+        sims = [Similarity(torch.eye(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64),
+                           torch.ones((), dtype=torch.float64))]
+        uv = self._grid_uv()
+        for w in range(1, len(self.windows)):
+            (a0, b0), (a1, _) = self.windows[w - 1], self.windows[w]
+            shared = np.arange(a1, b0)
+            q_prev = _queries(uv, shared, shared, np.full_like(shared, a0))
+            q_this = _queries(uv, shared, shared, np.full_like(shared, a1))
+            prev, this = self._ask(w - 1, q_prev), self._ask(w, q_this)
+            conf = prev["confidence"] * this["confidence"]
+            ok = np.isfinite(conf) & (conf > 0) & np.isfinite(prev["points"]).all(1) & np.isfinite(this["points"]).all(1)
+            keep = np.nonzero(ok)[0]
+            if len(keep) < 3:
+                raise UserError(f"windows {w - 1} and {w} share too few confident points to be aligned")
+            # The most confident align_fraction of the shared points (ties broken by order).
+            order = keep[np.argsort(-conf[keep], kind="stable")]
+            keep = order[: max(3, int(np.ceil(self.align_fraction * len(order))))]
+            target = sims[w - 1].apply(torch.from_numpy(prev["points"][keep]))
+            sims.append(umeyama(torch.from_numpy(this["points"][keep]), target, with_scale=True))
+        return sims
+
+    def _window_scale(self, w: int) -> float:
+        return float(self.window_to_world[w].scale)
+
+    # ------------------------------------------------------------------------------------------------
+    # Recipes
+
+    def depth(self, resolution: tuple[int, int] | str | None = None) -> Depth:
+        """Depth of every frame: all pixels with t_src = t_tgt = t_cam = t; keep z.
+
+        resolution: None (the input video's own size), "encoder" (the answerer's encoder input, if it
+        has one) or (H, W): queries are continuous, so any size works (App. C).
+        Returns Depth(depth (T, H, W), confidence (T, H, W)), float32.
+        """
+        h, w = self._resolution(resolution)
+        uv = self._pixel_uv(h, w)
+        depth = np.zeros((self.num_frames, h, w), dtype=np.float32)
+        conf = np.zeros_like(depth)
+        for win in range(len(self.windows)):
+            frames = np.array(self._owned(win))
+            out = self._ask(win, _queries(uv, frames, frames, frames))
+            scale = self._window_scale(win)
+            depth[frames] = (out["points"][:, 2] * scale).reshape(-1, h, w)
+            conf[frames] = out["confidence"].reshape(-1, h, w)
+        return Depth(depth, conf)
+
+    @cached_property
+    def _camera_grid(self) -> tuple[list[dict], np.ndarray]:
+        """Per frame i, the grid points seen in camera i (t_src = t_tgt = t_cam = i) and the rigid fit
+        of camera i to the global world; the same answers serve intrinsics and poses."""
+        uv = self._grid_uv()
+        n = len(uv)
+        per_frame: list[dict] = [{} for _ in range(self.num_frames)]
+        c2w = np.zeros((self.num_frames, 4, 4))
+        for win in range(len(self.windows)):
+            frames = np.array(self._owned(win))
+            first = self.windows[win][0]
+            here = self._ask(win, _queries(uv, frames, frames, frames))
+            there = self._ask(win, _queries(uv, frames, frames, np.full_like(frames, first)))
+            sim = self.window_to_world[win].matrix().double().numpy()
+            for j, f in enumerate(frames):
+                sl = slice(j * n, (j + 1) * n)
+                per_frame[f] = {"points": here["points"][sl], "confidence": here["confidence"][sl]}
+                weights = _finite_weights(here["confidence"][sl] * there["confidence"][sl])
+                c2w[f] = _similarity_times_pose(sim, relative_pose(here["points"][sl], there["points"][sl], weights))
+        return per_frame, c2w
+
+    def cameras(self, intrinsics=None, method: str = "median", reference_frame: int = 0) -> Cameras:
+        """Intrinsics and camera-to-world poses of every frame, the world being camera ``reference_frame``.
+
+        Intrinsics: from a grid of points of frame i seen in camera i (t_src = t_tgt = t_cam = i), with
+        the paper's pinhole-median recipe (principal point at the image centre) or a least-squares fit
+        of fx, fy, cx, cy (``method="lstsq"``); known intrinsics ((3, 3) or (T, 3, 3), pixels of the
+        input video) replace the estimate. Poses: the same grid queried as (i, i, i) and (i, i, r) is one
+        set of points at one time in two cameras, so moving objects cannot corrupt the rigid Umeyama
+        fit between them (r = the window's first frame; windows are then chained by their Sim(3)).
+        """
+        self._check_frame(reference_frame, "reference_frame")
+        t = self.num_frames
+        per_frame, c2w = self._camera_grid
+        if intrinsics is not None:
+            k_all = np.asarray(intrinsics, dtype=np.float64)
+            if k_all.shape == (3, 3):
+                k_all = np.broadcast_to(k_all, (t, 3, 3)).copy()
+            if k_all.shape != (t, 3, 3) or not np.isfinite(k_all).all():
+                raise UserError(f"intrinsics must be finite (3, 3) or ({t}, 3, 3), got shape {k_all.shape}")
+        else:
+            uv = self._grid_uv()
+            k_all = np.stack([intrinsics_from_points(f["points"], uv, f["confidence"], self.height, self.width, method)
+                              for f in per_frame])
+        return Cameras(k_all, invert_rigid(c2w[reference_frame]) @ c2w, reference_frame)
+
+    def point_cloud(self, reference_frame: int = 0, stride: int = 1, min_confidence: float | None = None,
+                    visible_only: bool = False, frames=None) -> PointCloud:
+        """All (or every ``stride``-th) pixels of all frames, each at its own time (t_tgt = t_src), in the
+        camera of ``reference_frame`` directly (t_cam = reference: no explicit transforms, the paper's
+        recipe). With several windows, points are queried in their window's world and mapped by its
+        Sim(3) and the reference camera's pose.
+
+        min_confidence drops points below it; visible_only keeps points the answerer sees from the
+        reference frame (visibility > 0.5 at t_tgt = reference, one more query per point).
+        """
+        self._check_frame(reference_frame, "reference_frame")
+        if stride < 1:
+            raise UserError(f"stride must be >= 1, got {stride}")
+        frame_list = np.arange(self.num_frames) if frames is None else np.asarray(frames, dtype=np.int64)
+        for f in frame_list:
+            self._check_frame(int(f), "frames")
+        ys, xs = np.meshgrid(np.arange(0, self.height, stride), np.arange(0, self.width, stride), indexing="ij")
+        xs, ys = xs.ravel(), ys.ravel()
+        uv = np.stack([(xs + 0.5) / self.width, (ys + 0.5) / self.height], 1)
+        single = len(self.windows) == 1
+        if not single:
+            world_to_ref = invert_rigid(self._global_pose(reference_frame))
+        pts, conf, fr, pix = [], [], [], []
+        for win in range(len(self.windows)):
+            mine = np.array([f for f in frame_list if self._owner(int(f)) == win], dtype=np.int64)
+            if not len(mine):
+                continue
+            cam = reference_frame if single else self.windows[win][0]
+            out = self._ask(win, _queries(uv, mine, mine, np.full_like(mine, cam)))
+            p = out["points"]
+            if not single:
+                p = self.window_to_world[win].apply(torch.from_numpy(p)).numpy()
+                p = p @ world_to_ref[:3, :3].T + world_to_ref[:3, 3]
+            c = out["confidence"]
+            if visible_only:
+                seen = self._visible_from(reference_frame, uv, mine)
+                c = np.where(seen, c, -np.inf)
+            pts.append(p)
+            conf.append(c)
+            fr.append(np.repeat(mine, len(uv)))
+            pix.append(np.tile(np.stack([xs, ys], 1), (len(mine), 1)))
+        points, confidence = np.concatenate(pts), np.concatenate(conf)
+        frames_out, pixels = np.concatenate(fr), np.concatenate(pix)
+        keep = np.isfinite(points).all(1) & np.isfinite(confidence) & (confidence > 0)
+        if min_confidence is not None:
+            keep &= confidence >= min_confidence
+        colors = self.video[frames_out[keep], pixels[keep, 1], pixels[keep, 0]]
+        return PointCloud(points[keep].astype(np.float32), colors, confidence[keep].astype(np.float32),
+                          frames_out[keep], pixels[keep], reference_frame)
+
+    def _visible_from(self, reference_frame: int, uv: np.ndarray, frames: np.ndarray) -> np.ndarray:
+        """Whether each (frame, pixel) point is visible in frame ``reference_frame`` (its window must
+        contain both; otherwise False)."""
+        seen = np.zeros(len(frames) * len(uv), dtype=bool)
+        for win, (a, b) in enumerate(self.windows):
+            if not a <= reference_frame < b:
+                continue
+            inside = (frames >= a) & (frames < b)
+            if inside.any():
+                fr = frames[inside]
+                out = self._ask(win, _queries(uv, fr, np.full_like(fr, reference_frame), np.full_like(fr, reference_frame)))
+                mask = np.repeat(inside, len(uv))
+                seen[mask] |= out["visibility"] > 0.5
+            break
+        return seen
+
+    def tracks(self, points, frame: str = "camera", reference_frame: int = 0) -> Tracks:
+        """Full-video 3D tracks of points given as (N, 3) [t_src, x, y] (pixels of the input video,
+        OpenCV pixel centres).
+
+        frame="camera": at every frame k the point in camera k (t_tgt = t_cam = k);
+        frame="world": in the camera of ``reference_frame`` (t_cam fixed, t_tgt = k).
+        With several windows a track is carried into the next (previous) window from the shared frame
+        where it is most visible; if it is hidden in every shared frame it cannot be carried, and its
+        positions beyond are NaN with visibility 0.
+        """
+        if frame not in ("camera", "world"):
+            raise UserError(f"frame must be 'camera' or 'world', got {frame!r}")
+        self._check_frame(reference_frame, "reference_frame")
+        src = self._check_track_points(points)
+        n, t = len(src), self.num_frames
+        out = {"points": np.full((n, t, 3), np.nan), "uv": np.full((n, t, 2), np.nan), "visibility": np.zeros((n, t)),
+               "confidence": np.zeros((n, t))}
+        uv0 = np.stack([(src[:, 1] + 0.5) / self.width, (src[:, 2] + 0.5) / self.height], 1)
+        t0 = src[:, 0].astype(np.int64)
+        home = np.array([self._owner(int(f)) for f in t0], dtype=np.int64)
+        if frame == "world" and len(self.windows) > 1:
+            world_to_ref = invert_rigid(self._global_pose(reference_frame))
+        # Forward from each track's home window, then backward from it. A window decodes the tracks
+        # that start in it or were handed to it, writes the frames it owns, and hands the tracks on.
+        for direction in (1, -1):
+            handle_uv, handle_t = uv0.copy(), t0.copy()
+            carried = np.zeros(n, dtype=bool)  # holds a handle into the window being processed
+            order = range(len(self.windows)) if direction == 1 else range(len(self.windows) - 1, -1, -1)
+            for win in order:
+                idx = np.nonzero((home == win) | carried)[0]
+                if len(idx) == 0:
+                    continue
+                a, b = self.windows[win]
+                frames = np.arange(a, b)
+                if frame == "camera":
+                    cam = frames
+                else:
+                    cam = np.full_like(frames, reference_frame if len(self.windows) == 1 else a)
+                q = _track_queries(handle_uv[idx], handle_t[idx], frames, cam)
+                ans = {k: v.reshape(len(idx), len(frames), *v.shape[1:]) for k, v in self._ask(win, q).items()}
+                p = ans["points"]
+                if len(self.windows) > 1:
+                    if frame == "camera":
+                        p = p * self._window_scale(win)
+                    else:
+                        p = self.window_to_world[win].apply(torch.from_numpy(p)).numpy()
+                        p = p @ world_to_ref[:3, :3].T + world_to_ref[:3, 3]
+                # The backward pass only writes for tracks handed back to this window (the home window
+                # was written going forward).
+                write = idx if direction == 1 else idx[home[idx] != win]
+                rows = np.isin(idx, write)
+                owned = np.array(self._owned(win)) - a
+                for key, value in (("points", p), ("uv", ans["uv"]), ("visibility", ans["visibility"]),
+                                   ("confidence", ans["confidence"])):
+                    out[key][write[:, None], owned + a] = value[rows][:, owned]
+                # Hand the tracks on through the shared frame where they are most visible.
+                nxt = win + direction
+                carried[:] = False
+                if 0 <= nxt < len(self.windows):
+                    na, nb = self.windows[nxt]
+                    shared = np.arange(max(a, na), min(b, nb)) - a
+                    vis = ans["visibility"][:, shared]
+                    best = np.argmax(vis, axis=1)
+                    rows_all = np.arange(len(idx))
+                    k = shared[best]
+                    new_uv = ans["uv"][rows_all, k]
+                    ok = (vis[rows_all, best] > 0.5) & np.all((new_uv >= 0) & (new_uv <= 1), 1)
+                    handle_uv[idx[ok]] = new_uv[ok]
+                    handle_t[idx[ok]] = k[ok] + a
+                    carried[idx[ok]] = True
+        return Tracks(out["points"], out["visibility"], out["confidence"], out["uv"], frame, reference_frame)
+
+    def dense_tracks(self, resolution: tuple[int, int] | None = None, batch_size: int = 1024,
+                     visibility_threshold: float = 0.5) -> DenseTracks:
+        """Camera-frame tracks of every pixel of every frame with the occupancy grid (Alg. 1).
+
+        resolution: (H, W) of the grid (default: the input video's). Runs within one window: long
+        videos must be tracked window by window (``Reconstruction(..., window=...)`` with one window).
+        """
+        if len(self.windows) > 1:
+            raise UserError("dense tracking runs within one window; this video spans "
+                            f"{len(self.windows)} windows (track a shorter clip, or each window separately)")
+        h, w = self._resolution(resolution)
+        t = self.num_frames
+        frames = np.arange(t)
+
+        def ask(src: np.ndarray) -> dict:
+            uv = np.stack([(src[:, 1] + 0.5) / w, (src[:, 2] + 0.5) / h], 1)
+            out = self._ask(0, _track_queries(uv, src[:, 0], frames, frames))
+            return {k: v.reshape(len(src), t, *v.shape[1:]) for k, v in out.items()}
+
+        res = occupancy_tracking(ask, t, h, w, batch_size, visibility_threshold, progress=bool(self.progress))
+        tracks = Tracks(res["points"], res["visibility"], res["confidence"], res["uv"], "camera", 0)
+        return DenseTracks(tracks, res["sources"], res["num_queries"], t * t * h * w, float(res["grid"].mean()),
+                           (h, w))
+
+    # ------------------------------------------------------------------------------------------------
+
+    def _global_pose(self, frame: int) -> np.ndarray:
+        """Camera-to-global-world pose of one frame (through its window's Sim(3))."""
+        return self._camera_grid[1][frame]
+
+    def _resolution(self, resolution) -> tuple[int, int]:
+        if resolution is None:
+            return self.height, self.width
+        if resolution == "encoder":
+            if self.source.encoder_size is None:
+                raise UserError("this answerer has no encoder resolution; pass (height, width) instead")
+            return self.source.encoder_size
+        if (not isinstance(resolution, (tuple, list)) or len(resolution) != 2
+                or not all(isinstance(v, (int, np.integer)) and v > 0 for v in resolution)):
+            raise UserError(f"resolution must be None, 'encoder' or (height, width) positive ints, got {resolution!r}")
+        return int(resolution[0]), int(resolution[1])
+
+    def _check_frame(self, frame: int, name: str) -> None:
+        if not isinstance(frame, (int, np.integer)) or not 0 <= frame < self.num_frames:
+            raise UserError(f"{name} must be a frame index in [0, {self.num_frames - 1}], got {frame!r}")
+
+    def _check_track_points(self, points) -> np.ndarray:
+        p = np.asarray(points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise UserError(f"track points must have shape (N, 3) = [t_src, x, y], got {p.shape}")
+        if not np.isfinite(p).all():
+            raise UserError("track points contain NaN or infinite values")
+        t = p[:, 0]
+        if ((t != np.round(t)) | (t < 0) | (t >= self.num_frames)).any():
+            raise UserError(f"track t_src must be integer frames in [0, {self.num_frames - 1}]")
+        if ((p[:, 1] < -0.5) | (p[:, 1] > self.width - 0.5) | (p[:, 2] < -0.5) | (p[:, 2] > self.height - 0.5)).any():
+            raise UserError(f"track (x, y) must lie in the {self.width}x{self.height} image "
+                            "(pixel centres at integers, edges at -0.5 and size - 0.5)")
+        return p
+
+
+def plan_windows(num_frames: int, window: int | None, overlap: int | None = None) -> list[tuple[int, int]]:
+    """Overlapping [start, stop) windows of at most ``window`` frames covering the video; consecutive
+    windows share at least ``overlap`` frames (default a quarter of the window, at least 1)."""
+    if window is None or window >= num_frames:
+        return [(0, num_frames)]
+    if window < 2:
+        raise UserError(f"window must be at least 2 frames, got {window}")
+    overlap = max(1, window // 4) if overlap is None else overlap
+    if not 1 <= overlap < window:
+        raise UserError(f"overlap must be between 1 and window - 1 = {window - 1}, got {overlap}")
+    starts = list(range(0, num_frames - window, window - overlap))
+    starts.append(num_frames - window)  # the last window ends with the video (it may overlap more)
+    return [(s, s + window) for s in starts]
+
+
+def _queries(uv: np.ndarray, t_src, t_tgt, t_cam) -> np.ndarray:
+    """Every grid position for every (t_src, t_tgt, t_cam) triple: (len(triples) * len(uv), 5), frame-major."""
+    t_src, t_tgt, t_cam = (np.asarray(x, dtype=np.float64) for x in (t_src, t_tgt, t_cam))
+    n = len(uv)
+    times = np.stack([t_src, t_tgt, t_cam], 1)
+    return np.concatenate([np.tile(uv, (len(times), 1)), np.repeat(times, n, axis=0)], 1)
+
+
+def _track_queries(uv: np.ndarray, t_src: np.ndarray, frames: np.ndarray, cams: np.ndarray) -> np.ndarray:
+    """For each source (uv (N, 2), t_src (N,)), one query per frame k: (N * K, 5), source-major."""
+    n, k = len(uv), len(frames)
+    q = np.empty((n, k, 5))
+    q[..., :2] = uv[:, None]
+    q[..., 2] = np.asarray(t_src)[:, None]
+    q[..., 3] = frames[None]
+    q[..., 4] = cams[None]
+    return q.reshape(-1, 5)
+
+
+def _finite_weights(w: np.ndarray) -> np.ndarray:
+    return np.where(np.isfinite(w) & (w > 0), w, 0.0)
+
+
+def _similarity_times_pose(sim: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Sim(3) [sR | t] after a rigid pose: the camera's rotation turns by R, its centre maps by the Sim(3)."""
+    scale = np.cbrt(np.linalg.det(sim[:3, :3]))
+    rot = sim[:3, :3] / scale
+    out = np.eye(4)
+    out[:3, :3] = rot @ pose[:3, :3]
+    out[:3, 3] = sim[:3, :3] @ pose[:3, 3] + sim[:3, 3]
+    return out
+
+
+def _as_uint8_video(video) -> np.ndarray:
+    v = video.detach().cpu().numpy() if isinstance(video, torch.Tensor) else np.asarray(video)
+    if v.ndim != 4 or v.shape[-1] != 3 or min(v.shape[:3]) < 1:
+        raise UserError(f"video must have shape (T, H, W, 3), got {v.shape}")
+    if v.dtype == np.uint8:
+        return v
+    if np.issubdtype(v.dtype, np.floating):
+        if not np.isfinite(v).all() or v.min() < 0 or v.max() > 1:
+            raise UserError("float video values must be finite and in [0, 1]")
+        return np.round(v * 255).astype(np.uint8)
+    raise UserError(f"video must be uint8 or float in [0, 1], got dtype {v.dtype}")

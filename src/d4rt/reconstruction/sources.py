@@ -1,0 +1,89 @@
+"""Whatever answers queries, seen as a source of windows.
+
+The recipes only need ``query(queries (N, 5)) -> dict`` over a run of frames. A *source* hands out
+one answerer per window of frames, so that long videos are processed window by window with memory
+bounded by the window: the model encodes each window when it is needed; the synthetic oracle answers
+any window directly.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+
+class Answerer(Protocol):
+    """Anything that answers D4RT queries: an encoded scene, a ground-truth oracle."""
+
+    num_frames: int
+
+    def query(self, queries) -> dict: ...
+
+
+class Source(Protocol):
+    num_frames: int
+    max_window: int | None  # longest window one answerer can take (None: any)
+    encoder_size: tuple[int, int] | None  # (H, W) of the encoder input, if there is one
+
+    def window(self, start: int, stop: int) -> Answerer: ...
+
+
+class AnswererSource:
+    """One answerer for the whole clip (an encoded scene, an oracle). Smaller windows, if asked for,
+    are frame ranges of it: this is how stitching is tested against exact ground truth."""
+
+    def __init__(self, answerer: Answerer, encoder_size: tuple[int, int] | None = None,
+                 max_window: int | None = None):
+        self.answerer = answerer
+        self.num_frames = answerer.num_frames
+        self.max_window = max_window
+        self.encoder_size = encoder_size
+
+    def window(self, start: int, stop: int) -> Answerer:
+        if (start, stop) == (0, self.num_frames):
+            return self.answerer
+        return _FrameRange(self.answerer, start, stop)
+
+
+class ModelSource:
+    """A D4RT model over a video: each window is encoded when it is first asked for, and only the
+    window in use is kept (memory is bounded by the window, not the video)."""
+
+    def __init__(self, model, video, max_window: int | None = None):
+        self.model, self.video = model, video
+        self.num_frames = int(video.shape[0])
+        self.max_window = max_window or model.config.max_frames
+        size = model.config.image_size
+        self.encoder_size = (size, size)
+        self._current: tuple[tuple[int, int], Answerer] | None = None
+
+    def window(self, start: int, stop: int) -> Answerer:
+        if self._current is None or self._current[0] != (start, stop):
+            self._current = None  # release the previous window's tokens before encoding the next
+            self._current = ((start, stop), self.model.encode(self.video[start:stop]))
+        return self._current[1]
+
+
+class _FrameRange:
+    """Frames [start, stop) of an answerer, re-indexed from 0."""
+
+    def __init__(self, answerer: Answerer, start: int, stop: int):
+        self.answerer, self.start = answerer, start
+        self.num_frames = stop - start
+
+    def query(self, queries) -> dict:
+        q = np.array(queries, dtype=np.float64, copy=True)
+        q[:, 2:] += self.start
+        return self.answerer.query(q)
+
+
+def as_source(answerer) -> Source:
+    """Wrap an answerer (or pass a source through)."""
+    if hasattr(answerer, "window"):
+        return answerer
+    encoder_size = None
+    model = getattr(answerer, "model", None)  # an EncodedScene knows its model
+    if model is not None and hasattr(model, "config"):
+        encoder_size = (model.config.image_size, model.config.image_size)
+    return AnswererSource(answerer, encoder_size)

@@ -1,0 +1,67 @@
+"""The reconstruction layer over the model (random weights: shapes and plumbing, not accuracy), and
+its input errors."""
+
+import numpy as np
+import pytest
+import torch
+
+from d4rt import D4RT, D4RTConfig, Reconstruction
+from d4rt.errors import UserError
+
+
+@pytest.fixture(scope="module")
+def model():
+    torch.manual_seed(0)
+    return D4RT(D4RTConfig.preset("tiny")).eval()
+
+
+def test_model_reconstruct_gives_every_output(model):
+    video = (np.random.default_rng(0).random((6, 30, 40, 3)) * 255).astype(np.uint8)
+    rec = model.reconstruct(video, grid=8)
+    d = rec.depth()
+    assert d.depth.shape == (6, 30, 40) and np.isfinite(d.depth).all() and (d.confidence > 0).all()
+    assert rec.depth(resolution="encoder").depth.shape == (6, 64, 64)
+    cams = rec.cameras()
+    assert cams.intrinsics.shape == (6, 3, 3) and cams.cam_to_world.shape == (6, 4, 4)
+    r = cams.cam_to_world[:, :3, :3]
+    assert np.allclose(r @ r.transpose(0, 2, 1), np.eye(3), atol=1e-9) and np.allclose(cams.cam_to_world[0], np.eye(4))
+    tr = rec.tracks([[0, 5, 5], [5, 39, 29]], frame="world")
+    assert tr.points.shape == (2, 6, 3) and np.isfinite(tr.points).all()
+    pc = rec.point_cloud(stride=5)
+    assert pc.points.shape[1] == 3 and len(pc.points) == len(pc.colors) == 6 * 6 * 8
+
+
+def test_long_videos_are_encoded_window_by_window(model, monkeypatch):
+    video = (np.random.default_rng(1).random((30, 24, 24, 3)) * 255).astype(np.uint8)  # tiny: 24 frames max
+    calls = []
+    original = model.encode
+
+    def counting_encode(v):
+        calls.append(len(v))
+        return original(v)
+
+    monkeypatch.setattr(model, "encode", counting_encode)
+    rec = model.reconstruct(video, grid=6)
+    assert rec.windows == [(0, 24), (6, 30)]
+    cams = rec.cameras()
+    assert np.isfinite(cams.cam_to_world).all() and cams.cam_to_world.shape == (30, 4, 4)
+    assert np.isfinite(rec.depth().depth).all()
+    assert set(calls) == {24} and len(calls) >= 2  # whole windows only, never the whole video
+
+
+def test_bad_inputs_fail_clearly(room_clip):
+    with pytest.raises(UserError, match="covers 8 frames but the video has 7"):
+        Reconstruction(room_clip.oracle, room_clip.rgb[:7])
+    with pytest.raises(UserError, match=r"\(T, H, W, 3\)"):
+        Reconstruction(room_clip.oracle, room_clip.rgb[..., 0])
+    rec = room_clip.reconstruction()
+    with pytest.raises(UserError, match="reference_frame"):
+        rec.cameras(reference_frame=8)
+    with pytest.raises(UserError, match="resolution"):
+        rec.depth(resolution=(0, 5))
+    with pytest.raises(UserError, match="no encoder resolution"):
+        rec.depth(resolution="encoder")
+    with pytest.raises(UserError, match="frame must be"):
+        rec.tracks([[0, 1, 1]], frame="global")
+    with pytest.raises(UserError, match="one window"):
+        room_clip.reconstruction(window=4, overlap=1).dense_tracks()

@@ -1,0 +1,171 @@
+"""The query recipes, run on the synthetic engine's exact oracle, must reproduce ground truth."""
+
+import numpy as np
+import pytest
+
+from d4rt.errors import UserError
+from d4rt.geometry.camera import project, unproject_depth
+from d4rt.geometry.transforms import apply_transform, invert_rigid
+from d4rt.reconstruction import Reconstruction, plan_windows
+from d4rt.synthetic import render_clip
+
+
+def rotation_error_deg(a, b):
+    r = a[..., :3, :3] @ np.swapaxes(b[..., :3, :3], -1, -2)
+    return np.degrees(np.arccos(np.clip((np.trace(r, axis1=-2, axis2=-1) - 1) / 2, -1, 1)))
+
+
+@pytest.fixture(scope="module")
+def busy_clip():
+    """Moving objects cover a large part of the view: they must not corrupt the camera fit."""
+    clip = render_clip(13, 10, 48, 64, environment="room", num_objects=8, moving_fraction=1.0,
+                       camera_motion="handheld", fov_degrees=(35, 40))
+    moving = [k for k, kind in enumerate(clip.scene.info["body_motion"]) if kind not in ("environment", "static")]
+    fraction = np.isin(clip.object_ids, moving).mean()
+    assert fraction > 0.25, fraction  # the premise of the test
+    return clip
+
+
+def test_depth_equals_the_rendered_depth(room_clip):
+    d = room_clip.reconstruction().depth()
+    assert d.depth.shape == room_clip.depth.shape and d.confidence.shape == room_clip.depth.shape
+    rel = np.abs(d.depth - room_clip.depth) / room_clip.depth
+    assert np.median(rel) < 1e-7 and rel.max() < 4e-6
+    assert (d.confidence == 1).all()
+
+
+def test_depth_at_another_resolution_is_exact_too(outdoor_clip):
+    rec = outdoor_clip.reconstruction()
+    d = rec.depth(resolution=(20, 36)).depth  # half size: pixel centres fall between the originals
+    k = outdoor_clip.intrinsics.copy()
+    k[:, 0] *= 0.5
+    k[:, 1] *= 0.5
+    k[:, 0, 2] = (36 - 1) / 2 + (outdoor_clip.intrinsics[:, 0, 2] - (72 - 1) / 2) * 0.5
+    k[:, 1, 2] = (20 - 1) / 2 + (outdoor_clip.intrinsics[:, 1, 2] - (40 - 1) / 2) * 0.5
+    ref = outdoor_clip.resize(20, 36)  # re-rendered exactly on that grid
+    assert np.allclose(ref.intrinsics, k)
+    assert np.abs(d - ref.depth).max() / ref.depth.max() < 4e-6
+
+
+def test_point_cloud_equals_the_ground_truth_cloud_in_the_reference_camera(room_clip):
+    ref = 3
+    pc = room_clip.reconstruction().point_cloud(reference_frame=ref, stride=2)
+    f, x, y = pc.frames, pc.pixels[:, 0], pc.pixels[:, 1]
+    cam = unproject_depth(room_clip.depth.astype(np.float64), room_clip.intrinsics)[f, y, x]
+    world = apply_transform(room_clip.cam_to_world[f], cam)
+    expected = apply_transform(invert_rigid(room_clip.cam_to_world[ref]), world)
+    assert len(pc.points) == room_clip.num_frames * 24 * 32
+    assert np.abs(pc.points - expected).max() < 1e-4 * np.abs(expected).max()
+    assert np.array_equal(pc.colors, room_clip.rgb[f, y, x])
+    seen = room_clip.reconstruction().point_cloud(reference_frame=ref, stride=4, visible_only=True)
+    assert 0 < len(seen.points) < room_clip.num_frames * 12 * 16  # occluded / out-of-view points dropped
+
+
+def test_cameras_are_exact_despite_large_moving_objects(busy_clip):
+    cams = busy_clip.reconstruction().cameras()
+    gt = invert_rigid(busy_clip.cam_to_world[0]) @ busy_clip.cam_to_world
+    scale = np.linalg.norm(gt[:, :3, 3], axis=1).max() + 1.0
+    assert rotation_error_deg(cams.cam_to_world, gt).max() < 0.01
+    assert np.abs(cams.cam_to_world[:, :3, 3] - gt[:, :3, 3]).max() < 1e-4 * scale
+    focal_err = np.abs(cams.intrinsics[:, 0, 0] / busy_clip.intrinsics[:, 0, 0] - 1)
+    assert focal_err.max() < 1e-3
+    assert np.allclose(cams.intrinsics[:, :2, 2], busy_clip.intrinsics[:, :2, 2])
+    # Another reference frame: the world is that camera.
+    cams5 = busy_clip.reconstruction().cameras(reference_frame=5)
+    assert np.allclose(cams5.cam_to_world[5], np.eye(4), atol=1e-12)
+
+
+def test_least_squares_intrinsics_are_exact_for_an_off_centre_principal_point():
+    clip = render_clip(4, 3, 40, 56, principal_point_jitter=0.12, zoom=True, num_objects=3)
+    rec = clip.reconstruction()
+    fit = rec.cameras(method="lstsq").intrinsics
+    assert np.abs(fit - clip.intrinsics).max() < 1e-6 * clip.intrinsics[:, 0, 0].max()
+    median = rec.cameras(method="median").intrinsics  # assumes a centred principal point: biased here
+    assert np.abs(median[:, :2, 2] - clip.intrinsics[:, :2, 2]).max() > 1.0
+    known = rec.cameras(intrinsics=clip.intrinsics[0]).intrinsics
+    assert np.array_equal(known, np.broadcast_to(clip.intrinsics[0], known.shape))
+    with pytest.raises(UserError, match="intrinsics"):
+        rec.cameras(intrinsics=np.eye(4))
+
+
+def test_tracks_in_world_and_camera_frames(room_clip):
+    rec = room_clip.reconstruction()
+    rng = np.random.default_rng(0)
+    n, t = 300, room_clip.num_frames
+    pts = np.stack([rng.integers(0, t, n), rng.integers(0, 64, n), rng.integers(0, 48, n)], 1).astype(float)
+    world = rec.tracks(pts, frame="world", reference_frame=0)
+    cam = rec.tracks(pts, frame="camera")
+    assert world.points.shape == (n, t, 3) and world.visibility.shape == (n, t)
+    ids = room_clip.object_ids[pts[:, 0].astype(int), pts[:, 2].astype(int), pts[:, 1].astype(int)]
+    static = np.isin(ids, [k for k, kind in enumerate(room_clip.scene.info["body_motion"])
+                           if kind in ("environment", "static")])
+    spread = np.abs(world.points - world.points[:, :1]).max((1, 2))
+    assert static.sum() > 50 and spread[static].max() < 1e-9 * np.abs(world.points).max()
+    assert spread[~static].max() > 1e-2  # moving points do move
+    # Camera-frame tracks project to the ground-truth 2D track (the oracle's uv at every frame).
+    xy, z = project(cam.points, room_clip.intrinsics[None])
+    uv = (xy + 0.5) / np.array([64, 48])
+    front = z > 0
+    assert np.abs(uv - cam.uv)[front].max() < 1e-9
+    # Each track passes through its own query pixel, visibly, at t_src.
+    rows = np.arange(n)
+    assert np.allclose(cam.uv[rows, pts[:, 0].astype(int)], (pts[:, 1:] + 0.5) / np.array([64, 48]))
+    assert (cam.visibility[rows, pts[:, 0].astype(int)] == 1).all()
+    with pytest.raises(UserError, match="t_src"):
+        rec.tracks([[8, 1, 1]])
+    with pytest.raises(UserError, match="image"):
+        rec.tracks([[0, 64, 1]])
+
+
+def test_dense_tracking_covers_every_pixel_with_far_fewer_queries():
+    clip = render_clip(3, 16, 48, 64, environment="room", num_objects=6, camera_motion="orbit", articulated=True,
+                       moving_fraction=0.8)  # a typical clip: moving camera, moving and occluding objects
+    dense = clip.reconstruction().dense_tracks(batch_size=256)
+    t = clip.num_frames
+    assert dense.coverage == 1.0
+    assert dense.naive_num_queries == t * t * 48 * 64
+    assert dense.num_queries == len(dense.sources) * t
+    assert dense.query_reduction >= 5, dense.query_reduction
+    print(f"dense tracking: {dense.query_reduction:.1f}x fewer queries than naive")
+    # Every track starts visibly at its source pixel.
+    src = dense.sources
+    uv = dense.tracks.uv[np.arange(len(src)), src[:, 0]]
+    assert np.allclose(uv, (src[:, 1:] + 0.5) / np.array([64, 48]))
+
+
+def test_windows_plan():
+    assert plan_windows(10, None) == [(0, 10)]
+    assert plan_windows(10, 12) == [(0, 10)]
+    w = plan_windows(30, 10, 3)
+    assert w[0] == (0, 10) and w[-1][1] == 30 and all(b - a == 10 for a, b in w)
+    assert all(w[i + 1][0] <= w[i][1] - 3 for i in range(len(w) - 1))
+    with pytest.raises(UserError, match="overlap"):
+        plan_windows(30, 10, 10)
+
+
+def test_a_video_three_windows_long_is_stitched_exactly():
+    clip = render_clip(8, 24, 32, 48, environment="room", num_objects=5, camera_motion="orbit", moving_fraction=0.8)
+    whole = clip.reconstruction()
+    split = clip.reconstruction(window=8, overlap=3)
+    assert len(split.windows) >= 3
+    gt = invert_rigid(clip.cam_to_world[0]) @ clip.cam_to_world
+    cams = split.cameras()
+    scale = np.linalg.norm(gt[:, :3, 3], axis=1).max() + 1.0
+    assert rotation_error_deg(cams.cam_to_world, gt).max() < 0.01
+    assert np.abs(cams.cam_to_world[:, :3, 3] - gt[:, :3, 3]).max() < 1e-4 * scale
+    assert np.abs(cams.intrinsics[:, 0, 0] / clip.intrinsics[:, 0, 0] - 1).max() < 1e-3
+    for sim in split.window_to_world:
+        assert abs(float(sim.scale) - 1) < 1e-9  # the oracle's windows share the metric scale
+    assert np.abs(split.depth().depth - whole.depth().depth).max() < 1e-4
+    a = split.point_cloud(reference_frame=20, stride=4)
+    b = whole.point_cloud(reference_frame=20, stride=4)
+    assert np.abs(a.points - b.points).max() < 1e-6 * np.abs(b.points).max()
+    # Tracks carried across windows match the whole-clip tracks wherever they could be carried.
+    rng = np.random.default_rng(1)
+    pts = np.stack([rng.integers(0, 24, 200), rng.integers(0, 48, 200), rng.integers(0, 32, 200)], 1).astype(float)
+    for frame in ("camera", "world"):
+        ta, tb = split.tracks(pts, frame=frame, reference_frame=2), whole.tracks(pts, frame=frame, reference_frame=2)
+        carried = np.isfinite(ta.points).all(2)
+        assert carried.mean() > 0.8
+        assert np.abs(ta.points - tb.points)[carried].max() < 1e-6 * np.abs(tb.points).max()
+        assert np.array_equal(ta.visibility[carried], tb.visibility[carried])
