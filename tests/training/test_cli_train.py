@@ -26,7 +26,8 @@ def test_tiny_cpu_config_trains_writes_safetensors_logs_and_resumes(tmp_path):
     logged = {key for record in records for key in record}
     for key in ("loss/total", "loss/3d", "loss/3d_confident", "loss/confidence", "loss/2d", "loss/visibility",
                 "loss/motion", "loss/normal", "lr", "grad_norm", "throughput/clips_per_s",
-                "throughput/queries_per_s", "val/loss/3d"):
+                "throughput/queries_per_s", "val/loss/3d", "val/abs_rel_scale_shift", "val/ate", "val/rpe_rot",
+                "val/apd3d", "val/aj", "val/oa"):
         assert key in logged, key
 
     resumed = run_d4rt("train", "--config", TINY, "--out", str(out), "--max-steps", "3", "--resume")

@@ -31,6 +31,7 @@ import yaml
 from d4rt.config import D4RTConfig
 from d4rt.data import DatasetConfig
 from d4rt.errors import UserError
+from d4rt.evaluation.benchmarks import TASKS as EVALUATION_TASKS
 from d4rt.training.losses import LossConfig
 
 STRATEGIES = ("auto", "single", "ddp", "fsdp")
@@ -119,7 +120,8 @@ class ValidationConfig:
     Clips are ``render_clip(seed + i, frames, height, width, **scene_options)`` for i < num_clips, or the
     first ``num_clips`` npz files of ``directory``. Training clips come from another seed stream, so
     these are never trained on. Each clip gives the loss terms on ``num_queries`` sampled queries and
-    reconstruction metrics: depth AbsRel, camera pose error and 3D track error of ``track_points`` points.
+    reconstruction metrics for ``tasks`` (of ``depth``, ``pose``, ``tracks``, ``world_tracks``,
+    ``point_cloud``; computed as ``d4rt eval`` does), tracks on ``track_points`` oracle tracks.
     """
 
     every: int = 0
@@ -131,6 +133,7 @@ class ValidationConfig:
     width: int = 64
     num_queries: int = 2048
     track_points: int = 256
+    tasks: tuple[str, ...] = ("depth", "pose", "tracks")
     scene_options: dict = field(default_factory=dict)
 
 
@@ -179,6 +182,9 @@ class TrainConfig:
         if height % model.patch_size or width % model.patch_size or max(height, width) > model.image_size:
             raise UserError(f"data.dataset.size {height}x{width} must be multiples of the model's patch_size "
                             f"{model.patch_size} and at most its image_size {model.image_size}")
+        unknown_tasks = sorted(set(val.tasks) - set(EVALUATION_TASKS))
+        if unknown_tasks:
+            raise UserError(f"validation.tasks: unknown {unknown_tasks}; choose from {list(EVALUATION_TASKS)}")
         if model.rgb_patch_source == "original" and model.rgb_patch_size > 0:
             raise UserError("training with rgb_patch_source='original' is not supported: the dataset yields "
                             "encoder-resolution frames only")
