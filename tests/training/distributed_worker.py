@@ -1,7 +1,7 @@
 """Run by ``torchrun`` in test_distributed.py: train a config, then report a digest of every parameter as
 each rank sees it (FSDP: the full parameter gathered from the shards).
 
-    torchrun --nproc_per_node 2 distributed_worker.py CONFIG.yaml OUT_DIR REPORT.json
+    torchrun --nproc_per_node 2 distributed_worker.py CONFIG.yaml OUT_DIR REPORT.json [--resume]
 """
 
 import hashlib
@@ -17,11 +17,11 @@ from d4rt.training.distributed import DistributedContext, unwrap
 from d4rt.training.trainer import Trainer
 
 
-def main(config_path: str, out: str, report: str) -> None:
+def main(config_path: str, out: str, report: str, *flags: str) -> None:
     config = TrainConfig.load(config_path)
     context = DistributedContext.from_environment(config.run.device)
     trainer = Trainer(config, out, context)
-    trainer.fit()
+    trainer.fit(resume="--resume" in flags)
     # Without cpu_offload every rank receives the full tensors.
     state = get_model_state_dict(unwrap(trainer.model), options=StateDictOptions(full_state_dict=True))
     digests = {name: hashlib.sha256(t.detach().cpu().contiguous().numpy().tobytes()).hexdigest()

@@ -121,15 +121,16 @@ class Trainer:
         return wrap_model(model.train(), self.strategy, self.context)
 
     def _check_run_directory(self, resume: bool) -> Path | None:
-        """Rank 0 decides whether to resume and from where; every rank learns the step."""
+        """Rank 0 finds the newest complete checkpoint (the run directory need only exist there); a run
+        directory with checkpoints is refused on every rank unless resuming."""
         root = self.out / "checkpoints"
         latest = None
         if self.context.is_main:
             ckpt.remove_temporaries(root)
             latest = ckpt.latest_checkpoint(root)
-            if latest is not None and not resume:
-                raise UserError(f"{self.out} already holds checkpoints (newest {latest.name}); pass --resume to "
-                                f"continue that run or choose another --out")
+        if self.context.broadcast_flag(latest is not None and not resume):
+            raise UserError(f"{self.out} already holds checkpoints; pass --resume to continue that run or choose "
+                            f"another --out")
         return latest
 
     def _restore(self, model, optimizer, latest: Path | None) -> dict:
