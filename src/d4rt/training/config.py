@@ -29,10 +29,11 @@ from typing import Any
 import yaml
 
 from d4rt.config import D4RTConfig
-from d4rt.data import DatasetConfig
+from d4rt.data import ClipQueryDataset, DatasetConfig
 from d4rt.errors import UserError
 from d4rt.evaluation.benchmarks import TASKS as EVALUATION_TASKS
 from d4rt.training.losses import LossConfig
+from d4rt.training.tracks import TrackDatasetConfig, TrackQueryDataset
 
 STRATEGIES = ("auto", "single", "ddp", "fsdp")
 PRECISIONS = ("auto", "fp32", "bf16")
@@ -59,12 +60,30 @@ class ModelSpec:
 
 @dataclass
 class DataSpec:
-    """Training data: ``dataset`` (a :class:`d4rt.data.DatasetConfig`), ``batch_size`` clips per process
-    per micro-step (the paper: 1 clip per chip), ``workers`` data-loading processes per training process."""
+    """Training data: ``dataset`` (a :class:`d4rt.data.DatasetConfig`: synthetic clips rendered on the fly
+    or clip files), or ``tracks`` (a :class:`d4rt.training.tracks.TrackDatasetConfig`: your clips with
+    per-point 3D tracks), which replaces ``dataset`` when given; ``batch_size`` clips per process per
+    micro-step (the paper: 1 clip per chip); ``workers`` data-loading processes per training process."""
 
     dataset: DatasetConfig = field(default_factory=DatasetConfig)
+    tracks: TrackDatasetConfig | None = None
     batch_size: int = 1
     workers: int = 2
+
+    @property
+    def frames(self) -> int:
+        return (self.tracks or self.dataset).frames
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return tuple((self.tracks or self.dataset).size)
+
+    @property
+    def num_queries(self) -> int:
+        return self.tracks.num_queries if self.tracks else self.dataset.sampler.num_queries
+
+    def build_dataset(self) -> ClipQueryDataset | TrackQueryDataset:
+        return TrackQueryDataset(self.tracks) if self.tracks else ClipQueryDataset(self.dataset)
 
 
 @dataclass
@@ -171,16 +190,19 @@ class TrainConfig:
         if not all(0 <= b < 1 for b in optim.betas):
             raise UserError(f"optim.betas must lie in [0, 1), got {optim.betas}")
         self.loss.validate()
-        dataset = data.dataset
-        dataset.augment.validate()
-        dataset.sampler.validate()
-        checked = [("data.dataset", dataset.frames)] + ([("validation", val.frames)] if val.every else [])
+        if data.tracks is not None:
+            data.tracks.validate()
+        else:
+            data.dataset.augment.validate()
+        data.dataset.sampler.validate()  # validation samples its queries with it
+        source = "data.tracks" if data.tracks is not None else "data.dataset"
+        checked = [(source, data.frames)] + ([("validation", val.frames)] if val.every else [])
         for name, frames in checked:
             if frames > model.max_frames:
                 raise UserError(f"{name}.frames {frames} exceeds the model's max_frames {model.max_frames}")
-        height, width = dataset.size
+        height, width = data.size
         if height % model.patch_size or width % model.patch_size or max(height, width) > model.image_size:
-            raise UserError(f"data.dataset.size {height}x{width} must be multiples of the model's patch_size "
+            raise UserError(f"{source}.size {height}x{width} must be multiples of the model's patch_size "
                             f"{model.patch_size} and at most its image_size {model.image_size}")
         unknown_tasks = sorted(set(val.tasks) - set(EVALUATION_TASKS))
         if unknown_tasks:

@@ -17,14 +17,13 @@ from collections.abc import Iterator
 import numpy as np
 import torch
 
-from d4rt.data import ClipQueryDataset
-
 
 class EpochIndexedDataset(torch.utils.data.Dataset):
     """``dataset[(epoch, index)]``: the sample ``index`` of ``epoch`` (works in any worker process,
-    whose copy of the dataset gets the epoch set per item)."""
+    whose copy of the dataset gets the epoch set per item). ``dataset`` has ``set_epoch`` and yields
+    sample dicts (:class:`d4rt.data.ClipQueryDataset`, :class:`d4rt.training.tracks.TrackQueryDataset`)."""
 
-    def __init__(self, dataset: ClipQueryDataset):
+    def __init__(self, dataset: torch.utils.data.Dataset):
         self.dataset = dataset
 
     def __len__(self) -> int:
@@ -75,7 +74,7 @@ def seed_worker(worker_id: int) -> None:
     np.random.seed(seed)
 
 
-def training_loader(dataset: ClipQueryDataset, stream: SampleStream, workers: int, seed: int, rank: int,
+def training_loader(dataset: torch.utils.data.Dataset, stream: SampleStream, workers: int, seed: int, rank: int,
                     pin_memory: bool) -> torch.utils.data.DataLoader:
     """A DataLoader over ``stream`` with ``workers`` processes; batches are dicts of stacked tensors."""
     generator = torch.Generator().manual_seed(seed * 1_000_003 + rank)

@@ -13,7 +13,8 @@ Which ground truth each term needs (``valid`` and ``uv_valid`` come from the dat
 term                    mask           why
 ======================  =============  =====================================================================
 L3D, confidence         ``valid``      the query pixel shows a surface (no sky, no missing depth)
-motion, normals         ``valid``      defined for every existing surface point, in camera t_cam
+motion                  ``valid``      defined for every existing surface point, in camera t_cam
+normals                 ``valid``      and ``normals_valid`` when the batch has it (track data has no normals)
 visibility              ``valid``      a point behind camera t_tgt or outside its image is simply *not
                                        visible*: target 0 is ground truth, so it is supervised
 L2D                     ``uv_valid``   the projection into frame t_tgt only exists in front of that camera;
@@ -121,7 +122,8 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
             ``motion (B,N,3)``, ``normals (B,N,3)`` (unit), ``confidence (B,N)`` (positive); any dtype
             (computed in float32).
         batch: targets as the dataset yields them, ``points``, ``uv``, ``visibility`` (0/1), ``motion``,
-            ``normals`` (zeros where undefined) and the masks ``valid (B,N)``, ``uv_valid (B,N)`` (bool).
+            ``normals`` (zeros where undefined) and the masks ``valid (B,N)``, ``uv_valid (B,N)`` (bool),
+            optionally ``normals_valid (B,N)`` (bool; default ``valid``).
         config: weights and choices; default :class:`LossConfig()` (the paper's).
 
     Returns:
@@ -133,8 +135,11 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
     p = {k: pred[k].float() for k in PREDICTION_KEYS}
     valid, uv_valid = batch["valid"].bool(), batch["uv_valid"].bool()
     # Targets are zeroed where they are missing, so that nothing undefined (NaN) reaches any gradient.
-    t = {k: _zero_where_missing(batch[k].float(), valid) for k in ("points", "visibility", "motion", "normals")}
+    # Sources without normals (per-point tracks) mark them missing in an extra mask.
+    normals_valid = batch["normals_valid"].bool() & valid if "normals_valid" in batch else valid
+    t = {k: _zero_where_missing(batch[k].float(), valid) for k in ("points", "visibility", "motion")}
     t["uv"] = _zero_where_missing(batch["uv"].float(), uv_valid)
+    t["normals"] = _zero_where_missing(batch["normals"].float(), normals_valid)
     target_points = t["points"]
 
     l3d = point_loss(p["points"], target_points, valid)
@@ -155,7 +160,7 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         pred_motion = pred_motion / mean_depth(p["points"], valid).detach()[:, None, None]
         target_motion = target_motion / mean_depth(target_points, valid)[:, None, None]
     lmotion = masked_mean((pred_motion - target_motion).abs().sum(-1), valid)
-    lnormal = masked_mean(1.0 - F.cosine_similarity(p["normals"], t["normals"], dim=-1, eps=1e-6), valid)
+    lnormal = masked_mean(1.0 - F.cosine_similarity(p["normals"], t["normals"], dim=-1, eps=1e-6), normals_valid)
 
     total = (point_term + config.weight_2d * l2d + config.weight_visibility * lvis
              + config.weight_motion * lmotion + config.weight_normal * lnormal)

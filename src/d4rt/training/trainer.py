@@ -32,7 +32,6 @@ import torch
 import torch.distributed as dist
 
 from d4rt.config import D4RTConfig
-from d4rt.data import ClipQueryDataset
 from d4rt.errors import UserError
 from d4rt.model import D4RT
 from d4rt.model.weights import CONFIG_NAME, WEIGHTS_NAME, check_state_dict
@@ -172,7 +171,7 @@ class Trainer:
             _truncate_metrics(self.out / "metrics.jsonl", step)
 
         data, run = cfg.data, cfg.run
-        dataset = ClipQueryDataset(data.dataset)
+        dataset = data.build_dataset()
         stream = SampleStream(len(dataset), run.seed, next_sample, data.batch_size, run.grad_accum, context.rank,
                               context.world_size)
         loader = iter(training_loader(dataset, stream, data.workers, run.seed, context.rank,
@@ -218,7 +217,7 @@ class Trainer:
                     last = {f"loss/{k}": v / window_steps for k, v in averaged.items() if k != "grad_norm"}
                     last.update({"grad_norm": averaged["grad_norm"] / window_steps, "lr": lr,
                                  "throughput/clips_per_s": clips_per_s,
-                                 "throughput/queries_per_s": clips_per_s * data.dataset.sampler.num_queries,
+                                 "throughput/queries_per_s": clips_per_s * data.num_queries,
                                  "skipped_steps": float(skipped)})
                     logger.log(step, last)
                     totals, window_start, window_steps = {}, time.perf_counter(), 0
