@@ -133,7 +133,8 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
     """
     config = config or LossConfig()
     p = {k: pred[k].float() for k in PREDICTION_KEYS}
-    valid, uv_valid = batch["valid"].bool(), batch["uv_valid"].bool()
+    valid = batch["valid"].bool()
+    uv_valid = batch["uv_valid"].bool() & valid
     # Targets are zeroed where they are missing, so that nothing undefined (NaN) reaches any gradient.
     # Sources without normals (per-point tracks) mark them missing in an extra mask.
     normals_valid = batch["normals_valid"].bool() & valid if "normals_valid" in batch else valid
