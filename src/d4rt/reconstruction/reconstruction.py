@@ -356,6 +356,15 @@ class Reconstruction:
         return DenseTracks(tracks, res["sources"], res["num_queries"], t * t * h * w, float(res["grid"].mean()),
                            (h, w))
 
+    def save(self, directory, formats="all", **options) -> list:
+        """Write the outputs ("all", or names such as ``["npz", "ply", "colmap"]``: see
+        ``d4rt.io.exports.FORMATS``) into ``directory``, atomically; ``options`` (resolution, intrinsics,
+        min_confidence, point_stride, track_grid, track_frame, timestamps, fps, progress) are those of
+        ``d4rt.io.exports.compute_outputs``. Returns the paths written."""
+        from d4rt.io.exports import save  # the I/O layer sits above this one
+
+        return save(self, directory, formats, **options)
+
     # ------------------------------------------------------------------------------------------------
 
     def _global_pose(self, frame: int) -> np.ndarray:
