@@ -129,25 +129,33 @@ def _load_folder(path: Path, selection: FrameRange, progress: bool) -> Frames:
     if not files:
         raise UserError(f"no images ({' '.join(IMAGE_SUFFIXES)}) in folder {path}")
     index = selection.select(len(files))
-    rgb, size = [], None
+    sizes = [_image_size(files[i]) for i in index]  # headers only: fails fast, before any decoding
+    for i, size in zip(index, sizes):
+        if size != sizes[0]:
+            raise UserError(f"images in {path} have mixed sizes: {files[i].name} is {size[0]}x{size[1]} "
+                            f"but {files[index[0]].name} is {sizes[0][0]}x{sizes[0][1]}")
+    rgb = []
     for i in tqdm(index, desc="decode", unit="frame", disable=not progress):
         try:
             with Image.open(files[i]) as image:
-                frame = np.asarray(image.convert("RGB"))
-        except (UnidentifiedImageError, OSError) as err:
+                rgb.append(np.asarray(image.convert("RGB")))
+        except OSError as err:
             raise UserError(f"cannot read image {files[i]}: {err}") from err
-        if size is None:
-            size, first = frame.shape[:2], files[i]
-        elif frame.shape[:2] != size:
-            raise UserError(f"images in {path} have mixed sizes: {files[i].name} is {frame.shape[1]}x{frame.shape[0]} "
-                            f"but {first.name} is {size[1]}x{size[0]}")
-        rgb.append(frame)
     stamps = _numeric_stems([files[i] for i in index])
     fps = None
     if stamps is not None and len(stamps) > 1:
         fps = 1.0 / float(np.median(np.diff(stamps)))
     return Frames(np.stack(rgb) if rgb else np.zeros((0, 1, 1, 3), np.uint8), index,
                   stamps if stamps is not None else index.astype(np.float64), fps, str(path))
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    """(width, height) from the image's header."""
+    try:
+        with Image.open(path) as image:
+            return image.size
+    except (UnidentifiedImageError, OSError) as err:
+        raise UserError(f"cannot read image {path}: {err}") from err
 
 
 def _numeric_stems(files: list[Path]) -> np.ndarray | None:
