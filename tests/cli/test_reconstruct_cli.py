@@ -7,6 +7,7 @@ outputs are meaningless but must exist and parse (their geometry is checked on t
 """
 
 import json
+import re
 import subprocess
 import sys
 from importlib.resources import files
@@ -128,6 +129,21 @@ def test_real_tum_frames_every_output_with_known_intrinsics(tmp_path, checkpoint
         np.testing.assert_allclose(npz["intrinsics"][5], [[fx / 20, 0, (cx + 0.5) / 20 - 0.5],
                                                           [0, fy / 20, (cy + 0.5) / 20 - 0.5], [0, 0, 1]])
         assert npz["timestamps"][0] == pytest.approx(1341847980.722988)  # the file names are capture times
+
+
+def test_long_video_windows_under_bf16(tmp_path, clip, checkpoint, cli):
+    """More frames than one window: windows encoded one by one and stitched, under bf16 autocast."""
+    video = tmp_path / "v.npy"
+    np.save(video, clip.rgb)
+    r = cli("reconstruct", video, "-o", tmp_path / "out", "--checkpoint", checkpoint, "--max-frames", "7",
+            "--window", "4", "--overlap", "2", "--bf16", "--tracks", "2", "--outputs", "npz,tum")
+    assert r.returncode == 0, r.stderr
+    # Windows [0, 4), [2, 6), [3, 7); the source keeps one encoded window, so recipes that go back to a
+    # window encode it again.
+    assert int(re.findall(r"encode: (\d+) window encodings", r.stderr)[-1]) >= 3
+    with np.load(tmp_path / "out" / "reconstruction.npz") as npz:
+        assert npz["depth"].shape == (7, 24, 32) and np.isfinite(npz["cam_to_world"]).all()
+        np.testing.assert_allclose(npz["cam_to_world"][0], np.eye(4), atol=1e-9)
 
 
 def _make_bad_inputs(d: Path, clip):

@@ -143,7 +143,7 @@ def run(args) -> int:
     print(f"d4rt reconstruct: {t} frames of {w}x{h} from {args.input} (source frames {frames.indices[0]}.."
           f"{frames.indices[-1]}, stride {args.stride}) with model '{model.config.name}' on {device}")
     autocast = torch.autocast(device.type, dtype=torch.bfloat16) if args.bf16 else nullcontext()
-    with autocast, tqdm(desc="encode", unit="window") as bar:
+    with autocast, tqdm(desc="encode", unit="window", bar_format="{desc}: {n} window encodings [{elapsed}]") as bar:
         # What model.reconstruct(video, window=, overlap=) builds, with a progress bar on the encoder.
         source = EncodeProgress(ModelSource(model, frames.rgb, max_window=args.window), bar)
         rec = Reconstruction(source, frames.rgb, window=args.window, overlap=args.overlap, progress=True)
