@@ -83,7 +83,7 @@ def test_known_intrinsics_hold_at_another_output_resolution(clip, tmp_path):
 
 
 def test_depth_pngs_round_trip(clip, saved):
-    out, npz = saved
+    out, _ = saved
     scale = json.loads((out / "depth" / "depth_scale.json").read_text())["depth_scale"]
     assert sorted(p.name for p in (out / "depth").glob("*.png")) == [f"{i:06d}.png" for i in range(5)]
     for t in (0, 4):

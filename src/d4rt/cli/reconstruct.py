@@ -20,7 +20,8 @@ def register(subparsers) -> None:
         description="Reconstruct a video in 4D with a D4RT model and write the outputs (units and conventions: "
                     "docs/outputs.md).")
     p.add_argument("input", metavar="INPUT",
-                   help="a video file (.mp4 .mov .avi .webm .mkv), a folder of images, or an .npy/.npz array (T, H, W, 3)")
+                   help="a video file (.mp4 .mov .avi .webm .mkv), a folder of images, or an .npy/.npz array "
+                        "(T, H, W, 3)")
     p.add_argument("-o", "--out", required=True, metavar="OUT_DIR", help="output directory")
     frames = p.add_argument_group("frames")
     frames.add_argument("--start", type=int, default=0, help="first frame, 0-based (default: 0)")
@@ -35,7 +36,8 @@ def register(subparsers) -> None:
     model = p.add_argument_group("model")
     model.add_argument("--checkpoint", metavar="DIR", default=None,
                        help="a directory written by D4RT.save_pretrained (default: the bundled model)")
-    model.add_argument("--device", default="auto", help="torch device: auto (the default: cuda if available), cpu, cuda, cuda:1, ...")
+    model.add_argument("--device", default="auto",
+                       help="torch device: auto (the default: cuda if available), cpu, cuda, cuda:1, ...")
     model.add_argument("--bf16", action="store_true", help="run the model under bfloat16 autocast")
     outputs = p.add_argument_group("outputs")
     outputs.add_argument("--intrinsics", metavar="FX,FY,CX,CY", default=None,
@@ -50,7 +52,8 @@ def register(subparsers) -> None:
                          help="point cloud from every n-th pixel (default: as dense as the depth maps)")
     outputs.add_argument("--tracks", type=int, default=16, metavar="N",
                          help="track an N x N grid of points (default: 16; 0: no tracks)")
-    outputs.add_argument("--track-frame", type=int, default=0, metavar="F", help="frame the tracked grid starts from (default: 0)")
+    outputs.add_argument("--track-frame", type=int, default=0, metavar="F",
+                         help="frame the tracked grid starts from (default: 0)")
     outputs.add_argument("--outputs", default="all",
                          help=f"comma-separated outputs to write (default: all): {', '.join(FORMATS)}")
     p.set_defaults(func=run)

@@ -191,7 +191,9 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     out = ReconstructionOutputs(rec.video, stamps, float(fps or (DEFAULT_FPS if timestamps is None else _rate(stamps))),
                                 min_confidence)
     out_h, out_w = rec._resolution(resolution)
-    stages = [s for s in ("cameras", "depth", "points", "tracks") if s in needs or (s == "cameras" and "depth" in needs)]
+    if "depth" in needs:
+        needs.add("cameras")  # the depth maps' intrinsics
+    stages = [s for s in ("cameras", "depth", "points", "tracks") if s in needs]
     bar = tqdm(stages, desc="query", unit="stage", disable=not progress)
     for stage in bar:
         bar.set_postfix_str(stage)

@@ -46,7 +46,8 @@ class FrameRange:
 
     def keeps(self, index: int) -> bool:
         """Whether source frame ``index`` is used (ignoring max_frames: see ``done``)."""
-        return index >= self.start and (self.end is None or index < self.end) and (index - self.start) % self.stride == 0
+        in_range = index >= self.start and (self.end is None or index < self.end)
+        return in_range and (index - self.start) % self.stride == 0
 
     def done(self, index: int, kept: int) -> bool:
         """Whether no frame from ``index`` on is needed, ``kept`` frames having been kept before it."""

@@ -35,7 +35,8 @@ def write_video(path: str | Path, frames: np.ndarray, fps: float = 12.0) -> Path
 
 
 
-def read_video(path: str | Path, selection, progress: bool = False) -> tuple[list[np.ndarray], list[float], float | None]:
+def read_video(path: str | Path, selection, progress: bool = False
+               ) -> tuple[list[np.ndarray], list[float], float | None]:
     """Decode the frames of a video file that ``selection`` (a :class:`d4rt.io.frames.FrameRange`) keeps,
     stopping as soon as it needs no more.
 

@@ -11,7 +11,8 @@ from d4rt.geometry.transforms import apply_transform, invert_rigid
 from d4rt.viz.colormaps import colormap
 
 
-def project_tracks(points: np.ndarray, intrinsics: np.ndarray, cam_to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def project_tracks(points: np.ndarray, intrinsics: np.ndarray,
+                   cam_to_world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """World tracks (N, T, 3) -> their pixel positions (N, T, 2) in each frame's camera (OpenCV centres)
     and depths (N, T). intrinsics: (T, 3, 3); cam_to_world: (T, 4, 4)."""
     in_camera = apply_transform(invert_rigid(cam_to_world)[None], points)
