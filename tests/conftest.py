@@ -7,8 +7,10 @@ import torch
 from d4rt.synthetic import render_clip
 
 if os.environ.get("PYTEST_XDIST_WORKER"):
-    # One torch thread per xdist worker: more threads than cores makes OpenMP spin and crawl.
+    # One torch thread per xdist worker (and per CLI subprocess a test starts, through the
+    # environment): more threads than cores makes OpenMP spin and crawl.
     torch.set_num_threads(1)
+    os.environ["OMP_NUM_THREADS"] = "1"
 
 
 @pytest.fixture(scope="session")

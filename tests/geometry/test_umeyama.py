@@ -66,3 +66,16 @@ def test_degenerate_inputs_fail_clearly():
         umeyama(line[:2], line[:2])
     with pytest.raises(UserError, match=r"\(N, 3\)"):
         umeyama(torch.zeros(5, 2), torch.zeros(5, 2))
+
+
+def test_degenerate_inputs_allowed_for_trajectory_evaluation():
+    """allow_degenerate: collinear points are aligned (rotation about the line is free, residual minimal),
+    coincident source points map onto the target centroid."""
+    line = torch.tensor([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], dtype=torch.float64)
+    target = line @ torch.tensor([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]], dtype=torch.float64).T * 2 + 5
+    fit = umeyama(line, target, with_scale=True, allow_degenerate=True)
+    assert torch.allclose(fit.apply(line), target) and np.isclose(float(fit.scale), 2.0)
+    assert np.isclose(np.linalg.det(fit.rotation.numpy()), 1.0)
+    point = torch.ones(3, 3, dtype=torch.float64)
+    fit = umeyama(point, line[:3], with_scale=True, allow_degenerate=True)
+    assert float(fit.scale) == 0.0 and torch.allclose(fit.apply(point), line[:3].mean(0).expand(3, 3))

@@ -64,3 +64,16 @@ def rigid(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
     out[..., :3, 3] = translation
     out[..., 3, 3] = 1.0
     return out
+
+
+def quaternion_to_rotation(quaternion_xyzw: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) in (x, y, z, w) order (TUM / ROS) -> rotation matrices (..., 3, 3).
+    The quaternion is normalised first."""
+    q = np.asarray(quaternion_xyzw, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)

@@ -30,7 +30,7 @@ class Similarity:
 
 
 def umeyama(src: torch.Tensor, dst: torch.Tensor, weights: torch.Tensor | None = None,
-            with_scale: bool = False) -> Similarity:
+            with_scale: bool = False, allow_degenerate: bool = False) -> Similarity:
     """The rotation, translation (and scale, if ``with_scale``) minimising
     sum_i w_i |dst_i - (s R src_i + t)|^2. src, dst: (N, 3); weights: (N,) non-negative.
 
@@ -38,6 +38,11 @@ def umeyama(src: torch.Tensor, dst: torch.Tensor, weights: torch.Tensor | None =
     is excluded by the sign correction of the SVD. Planar point sets (rank 2) still give the exact
     rotation; fewer than 3 non-collinear points, or zero total weight, raise an error. Computed in
     float64 and returned in src's dtype.
+
+    ``allow_degenerate=True`` (trajectory evaluation, like evo's alignment) accepts collinear points and
+    as few as one: the residual is still minimised, though the rotation about the line is then not
+    unique; if the source points coincide the best similarity maps them all onto the target centroid
+    (scale 0).
     """
     if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
         raise UserError(f"umeyama needs two (N, 3) point sets, got {tuple(src.shape)} and {tuple(dst.shape)}")
@@ -45,14 +50,15 @@ def umeyama(src: torch.Tensor, dst: torch.Tensor, weights: torch.Tensor | None =
     w = torch.ones(len(x), dtype=torch.float64, device=x.device) if weights is None else weights.double()
     finite = torch.isfinite(x).all(1) & torch.isfinite(y).all(1) & torch.isfinite(w) & (w > 0)
     x, y, w = x[finite], y[finite], w[finite]
-    if len(x) < 3 or w.sum() <= 0:
-        raise UserError(f"umeyama needs at least 3 weighted, finite correspondences, got {len(x)}")
+    min_points = 1 if allow_degenerate else 3
+    if len(x) < min_points or w.sum() <= 0:
+        raise UserError(f"umeyama needs at least {min_points} weighted, finite correspondences, got {len(x)}")
     w = w / w.sum()
     mx, my = w @ x, w @ y
     xc, yc = x - mx, y - my
     cov = (yc * w[:, None]).T @ xc  # (3, 3): sum_i w_i y_i x_i^T
     u, sing, vt = torch.linalg.svd(cov)
-    if sing[1] <= 1e-12 * max(sing[0].item(), 1e-300):
+    if not allow_degenerate and sing[1] <= 1e-12 * max(sing[0].item(), 1e-300):
         raise UserError("umeyama: the points are collinear (or coincide); a rotation is not determined")
     d = torch.ones(3, dtype=torch.float64, device=x.device)
     if torch.linalg.det(u) * torch.linalg.det(vt) < 0:
@@ -60,7 +66,7 @@ def umeyama(src: torch.Tensor, dst: torch.Tensor, weights: torch.Tensor | None =
     rot = u @ torch.diag(d) @ vt
     if with_scale:
         var_x = (w * (xc * xc).sum(1)).sum()
-        scale = (sing * d).sum() / var_x
+        scale = (sing * d).sum() / var_x if var_x > 0 else torch.zeros((), dtype=torch.float64, device=x.device)
     else:
         scale = torch.ones((), dtype=torch.float64, device=x.device)
     trans = my - scale * rot @ mx

@@ -1,0 +1,58 @@
+"""``d4rt eval``: score D4RT and baselines on a benchmark; markdown table to stdout, JSON to a file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    from d4rt.evaluation.baselines import BASELINES
+    from d4rt.evaluation.benchmarks import BENCHMARKS
+    from d4rt.evaluation.readers import FORMATS
+
+    p = subparsers.add_parser(
+        "eval", help="evaluate a checkpoint and baselines on a benchmark",
+        description="Evaluate D4RT (--checkpoint) and baselines (--baseline) with the field's protocols. "
+                    f"Benchmarks: {', '.join(BENCHMARKS)}. The synthetic benchmark is regenerated; the others "
+                    "read your copy of the dataset (--data). --data alone evaluates every sequence of a folder. "
+                    "Prints a markdown table (per-sequence rows and the aggregate) and writes JSON.")
+    p.add_argument("--benchmark", choices=sorted(BENCHMARKS), help="a named benchmark")
+    p.add_argument("--data", type=Path, help="dataset folder (required for real benchmarks)")
+    p.add_argument("--format", choices=sorted(FORMATS), help="layout of --data without --benchmark (default: detected)")
+    p.add_argument("--checkpoint", help="D4RT checkpoint directory (written by save_pretrained)")
+    p.add_argument("--baseline", action="append", choices=BASELINES, default=None,
+                   help="baseline to run beside it (repeatable; default with a checkpoint: oracle and "
+                        "constant-depth where the benchmark scores depth)")
+    p.add_argument("--out", type=Path, help="JSON results file (default: ./d4rt-eval-<benchmark>.json)")
+    p.add_argument("--limit", type=int, help="evaluate only the first N sequences")
+    p.add_argument("--device", default="cpu", help="torch device for the model")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from d4rt.errors import UserError
+    from d4rt.evaluation.baselines import make_baseline
+    from d4rt.evaluation.benchmarks import folder_benchmark, get_benchmark
+    from d4rt.evaluation.harness import run_benchmark
+    from d4rt.evaluation.predictions import d4rt_predictor
+    from d4rt.evaluation.report import to_markdown, write_json
+
+    if args.benchmark is None and args.data is None:
+        raise UserError("choose what to evaluate on: --benchmark NAME and/or --data DIR")
+    if args.benchmark is not None and args.format is not None:
+        raise UserError("--format is for --data without --benchmark (a benchmark knows its format)")
+    benchmark = get_benchmark(args.benchmark) if args.benchmark else folder_benchmark(args.data, args.format)
+    if args.data is not None and not benchmark.needs_data:
+        raise UserError(f"{benchmark.name} is generated, not read: drop --data")
+    baselines = args.baseline
+    if baselines is None:
+        if args.checkpoint is None:
+            raise UserError("nothing to evaluate: pass --checkpoint and/or --baseline")
+        baselines = ["oracle"] + (["constant-depth"] if "depth" in benchmark.tasks else [])
+    predictors = ([d4rt_predictor(args.checkpoint, args.device)] if args.checkpoint else [])
+    predictors += [make_baseline(name) for name in dict.fromkeys(baselines)]
+    results = run_benchmark(benchmark, predictors, args.data, args.limit)
+    print(to_markdown(benchmark, results))
+    out = args.out or Path(f"d4rt-eval-{benchmark.name.replace(':', '-').replace('/', '-')}.json")
+    print(f"wrote {write_json(out, benchmark, results)}")
+    return 0

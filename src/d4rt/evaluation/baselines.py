@@ -1,0 +1,58 @@
+"""Baselines run through the same harness as D4RT, so every table has a reference beside the model.
+
+- ``oracle``: the ground truth itself (sanity check: must score perfectly). On synthetic sequences it
+  goes through the same query recipes as the model, answered by the clip's exact oracle, so it also
+  checks the recipes and the harness end to end; elsewhere it returns the ground-truth arrays.
+- ``constant-depth``: the same depth at every pixel of every frame (1.0; after per-sequence scale
+  alignment it is the best single depth for the sequence). The floor any depth method must beat.
+- ``colmap``: COLMAP incremental SfM through pycolmap, camera poses only (``d4rt.evaluation.colmap``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from d4rt.errors import UserError
+from d4rt.evaluation.predictions import Prediction, Predictor, ReconstructionPredictor
+from d4rt.evaluation.sequence import EvalSequence
+
+BASELINES = ("oracle", "constant-depth", "colmap")
+
+
+class OraclePredictor:
+    """Ground truth as a prediction (see the module docstring)."""
+
+    name = "oracle"
+
+    def __init__(self):
+        self._recipes = ReconstructionPredictor(self.name, lambda sequence: sequence.clip.reconstruction())
+
+    def predict(self, sequence: EvalSequence, tasks: set[str]) -> Prediction:
+        if sequence.clip is not None:
+            return self._recipes.predict(sequence, tasks)
+        tracks = sequence.tracks
+        return Prediction(depth=sequence.depth, cam_to_world=sequence.cam_to_world,
+                          tracks=None if tracks is None else tracks.points,
+                          track_visible=None if tracks is None else tracks.visible,
+                          world_tracks=sequence.world_tracks(), point_map=sequence.point_map())
+
+
+class ConstantDepthPredictor:
+    """Depth 1.0 everywhere; predicts nothing else."""
+
+    name = "constant-depth"
+
+    def predict(self, sequence: EvalSequence, tasks: set[str]) -> Prediction:
+        return Prediction(depth=np.ones((sequence.num_frames, *sequence.image_size), dtype=np.float32))
+
+
+def make_baseline(name: str) -> Predictor:
+    if name == "oracle":
+        return OraclePredictor()
+    if name == "constant-depth":
+        return ConstantDepthPredictor()
+    if name == "colmap":
+        from d4rt.evaluation.colmap import ColmapPredictor
+
+        return ColmapPredictor()
+    raise UserError(f"unknown baseline {name!r}; known: {list(BASELINES)}")

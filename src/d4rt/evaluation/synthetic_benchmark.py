@@ -1,0 +1,91 @@
+"""``synthetic-dynamic-v1``: a fixed, versioned benchmark of synthetic dynamic clips with exact ground truth.
+
+48 clips of 24 frames. Clip i (i = 0..47) is ``render_clip(seed=BASE_SEED + i, frames=24, height, width,
+**options)`` with, deterministically from i:
+
+- size (H, W) = SIZES[i % 6]: 128x128 (1:1), 120x160 (4:3), 108x192 (16:9), 96x192 (2:1), 160x120 (3:4),
+  192x108 (9:16);
+- field of view across the longer side drawn in FOV_BANDS[i // 6]: 30-40, 40-50, ..., 100-110 degrees
+  (focal lengths from about 0.35x to 1.4x the longer side);
+- camera_motion = MOVING_CAMERA_MOTIONS[i % 5] (orbit, forward, pan, truck, handheld: the camera always
+  moves; pans get hand-held shake so that every camera also translates, which pose AUC's translation
+  directions need); environment room / outdoor alternating in pairs; zoom for every fourth clip;
+- num_objects = 4 + i % 5 rigid objects, each moving with probability 0.8 (``moving_fraction``), so
+  objects move, occlude each other and enter or leave the view; everything else (shapes, textures,
+  light, speeds, shake) is drawn from the seed.
+- 256 ground-truth 3D tracks per clip from the exact oracle (``readers.synthetic.oracle_tracks``, track
+  seed = clip seed).
+
+The same definition regenerates the same clips bit for bit on the same device; ``SCENE_FINGERPRINT``
+(a hash of every clip's scene description, cameras and body poses, which are pure numpy) freezes the
+definition: if scene sampling ever changes, the fingerprint test fails and the benchmark needs a new
+version instead of silently changing. The version is in the name.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from d4rt.evaluation.readers.synthetic import NUM_TRACKS, sequence_from_clip
+from d4rt.evaluation.sequence import EvalSequence
+from d4rt.synthetic.generate import render_clip
+from d4rt.synthetic.sampling import MOVING_CAMERA_MOTIONS, SceneOptions, sample_scene
+
+NAME = "synthetic-dynamic-v1"
+NUM_CLIPS = 48
+FRAMES = 24
+BASE_SEED = 20_251_000
+SIZES = ((128, 128), (120, 160), (108, 192), (96, 192), (160, 120), (192, 108))
+FOV_BANDS = tuple((float(lo), float(lo + 10)) for lo in range(30, 110, 10))
+SCENE_FINGERPRINT = "0cf87ee8112a959357fe9d57b08a5ea91eacafb64f20950dbfe47b690d5f2c47"
+
+
+@dataclass(frozen=True)
+class SyntheticClipSpec:
+    """Everything that determines one clip of the benchmark."""
+
+    index: int
+    seed: int
+    height: int
+    width: int
+    options: SceneOptions
+
+    @property
+    def name(self) -> str:
+        return f"clip_{self.index:02d}"
+
+    def render(self, device: str = "cpu") -> EvalSequence:
+        """Render the clip and attach its oracle tracks."""
+        clip = render_clip(self.seed, FRAMES, self.height, self.width, device=device, **vars(self.options))
+        return sequence_from_clip(clip, self.name, NUM_TRACKS, track_seed=self.seed)
+
+
+def clip_specs() -> list[SyntheticClipSpec]:
+    """The 48 clip definitions, in order."""
+    specs = []
+    for i in range(NUM_CLIPS):
+        options = SceneOptions(
+            environment=("room", "outdoor")[(i // 2) % 2],
+            num_objects=4 + i % 5,
+            camera_motion=MOVING_CAMERA_MOTIONS[i % len(MOVING_CAMERA_MOTIONS)],
+            fov_degrees=FOV_BANDS[i // len(SIZES)],
+            zoom=i % 4 == 3,
+            shake=True if MOVING_CAMERA_MOTIONS[i % len(MOVING_CAMERA_MOTIONS)] == "pan" else None,
+            moving_fraction=0.8,
+        )
+        specs.append(SyntheticClipSpec(i, BASE_SEED + i, *SIZES[i % len(SIZES)], options))
+    return specs
+
+
+def scene_fingerprint(specs: list[SyntheticClipSpec] | None = None) -> str:
+    """sha256 over every clip's sampled scene (description JSON, intrinsics, poses, body poses)."""
+    digest = hashlib.sha256()
+    for spec in specs or clip_specs():
+        scene = sample_scene(spec.seed, FRAMES, spec.height, spec.width, spec.options)
+        digest.update(scene.description.to_json().encode())
+        for array in (scene.intrinsics, scene.cam_to_world, scene.object_to_world):
+            digest.update(np.ascontiguousarray(np.round(array, 9), dtype=np.float64).tobytes())
+    return digest.hexdigest()

@@ -1,0 +1,120 @@
+"""The harness, the baselines and ``d4rt eval`` end to end."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from d4rt.cli import main
+from d4rt.config import D4RTConfig
+from d4rt.errors import UserError
+from d4rt.evaluation import synthetic_benchmark
+from d4rt.evaluation.baselines import ConstantDepthPredictor, OraclePredictor, make_baseline
+from d4rt.evaluation.benchmarks import folder_benchmark, get_benchmark
+from d4rt.evaluation.harness import evaluate_sequence, run_benchmark
+from d4rt.evaluation.metrics import pose_metrics
+from d4rt.evaluation.predictions import Prediction
+from d4rt.model import D4RT
+from d4rt.synthetic import render_clip
+from tests.evaluation.layouts import write_sintel
+
+
+@pytest.fixture(scope="module")
+def synthetic_sequence():
+    return get_benchmark(synthetic_benchmark.NAME).load(None, "clip_00")
+
+
+def test_metrics_respond_to_errors(synthetic_sequence):
+    """Starting from the oracle's perfect prediction, each kind of error moves its own metrics only."""
+    benchmark = get_benchmark(synthetic_benchmark.NAME)
+    seq = synthetic_sequence
+    perfect = OraclePredictor().predict(seq, set(benchmark.tasks))
+    rng = np.random.default_rng(0)
+    wrong = Prediction(
+        depth=perfect.depth * 3.0 + 1.0,  # affine: only "scale&shift" forgives it
+        cam_to_world=perfect.cam_to_world.copy(),
+        tracks=perfect.tracks + rng.normal(0, 0.05, perfect.tracks.shape),
+        track_visible=~perfect.track_visible,
+        world_tracks=perfect.world_tracks * 2.0,  # a global scale: median scaling forgives it
+        point_map=perfect.point_map,
+    )
+    wrong.cam_to_world[5:, :3, 3] += [0.2, 0.0, 0.0]  # a jump in the trajectory
+    m = evaluate_sequence(benchmark, seq, wrong).metrics
+    assert m["abs_rel[scale&shift]"] < 1e-6 and m["abs_rel[scale]"] > 0.01
+    assert m["ate"] > 0.01 and m["rpe_trans"] > 0.01 and m["rpe_rot"] < 1e-6 and m["auc@30"] < 1
+    assert m["apd3d"] < 1 and m["oa"] == 0.0 and m["aj"] == 0.0
+    assert m["world_apd3d"] == 1.0
+    constant = evaluate_sequence(benchmark, seq, ConstantDepthPredictor().predict(seq, set(benchmark.tasks)))
+    assert constant.metrics["abs_rel[scale]"] > 0.1 and constant.metrics["ate"] is None
+
+
+def test_colmap_baseline_registers_frames_of_a_textured_clip(synthetic_sequence):
+    pytest.importorskip("pycolmap")
+    seq = synthetic_sequence
+    prediction = make_baseline("colmap").predict(seq, {"pose"})
+    registered = prediction.registered
+    assert registered.sum() >= 3
+    assert prediction.notes == [] if registered.all() else "registered" in prediction.notes[0]
+    # A real reconstruction: the registered cameras follow the true path to a small fraction of its length.
+    m = pose_metrics(prediction.cam_to_world[registered], seq.cam_to_world[registered])
+    path = np.linalg.norm(np.diff(seq.cam_to_world[registered, :3, 3], axis=0), axis=1).sum()
+    assert m["ate"] < 0.2 * path and m["rpe_rot"] < 10.0
+    row = evaluate_sequence(get_benchmark(synthetic_benchmark.NAME), seq, prediction)
+    assert row.metrics["registered"] == registered.mean() and row.metrics["abs_rel[scale]"] is None
+
+
+def test_a_dataset_in_its_published_layout_through_the_harness(tmp_path):
+    """Sintel files on disk -> reader -> oracle baseline (ground-truth arrays) -> perfect scores."""
+    write_sintel(tmp_path, "alley_2", 4)
+    write_sintel(tmp_path, "cave_2", 3)
+    benchmark = folder_benchmark(tmp_path)
+    assert benchmark.format == "sintel"
+    (result,) = run_benchmark(benchmark, [OraclePredictor()], tmp_path, progress=False)
+    assert [r.name for r in result.rows] == ["alley_2", "cave_2"]
+    agg = result.aggregate
+    assert agg["abs_rel[scale]"] < 1e-12 and agg["ate"] < 1e-9 and agg["pc_l1"] < 1e-9 and agg["auc@30"] == 1.0
+    assert agg["apd3d"] is None  # Sintel has no tracks
+    with pytest.raises(UserError, match="lacks 12 sequence"):
+        get_benchmark("sintel").sequence_names(tmp_path)
+
+
+@pytest.fixture(scope="module")
+def tiny_checkpoint(tmp_path_factory):
+    torch.manual_seed(0)
+    directory = tmp_path_factory.mktemp("ckpt")
+    D4RT(D4RTConfig.preset("tiny")).save_pretrained(directory)
+    return directory
+
+
+def test_cli_eval_with_a_checkpoint(tmp_path, tiny_checkpoint, capsys):
+    data = tmp_path / "clips"
+    for i in range(2):
+        render_clip(i, 4, 24, 32, camera_motion="truck", num_objects=3).save(data / f"clip_{i}.npz")
+    out = tmp_path / "results.json"
+    assert main(["eval", "--data", str(data), "--checkpoint", str(tiny_checkpoint), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "| d4rt |" in printed and "| oracle |" in printed and "| constant-depth |" in printed
+    assert "### d4rt" in printed and "| clip_1 |" in printed and f"wrote {out}" in printed
+    results = json.loads(out.read_text())
+    methods = {m["name"]: m for m in results["methods"]}
+    assert list(methods) == ["d4rt", "oracle", "constant-depth"]
+    d4rt = methods["d4rt"]
+    assert [s["name"] for s in d4rt["sequences"]] == ["clip_0", "clip_1"]
+    # Random weights: numbers are finite and imperfect; the oracle beside them is perfect.
+    for key in ("abs_rel[scale&shift]", "ate", "apd3d", "world_l1", "pc_l1"):
+        assert np.isfinite(d4rt["aggregate"][key]), key
+    assert d4rt["aggregate"]["abs_rel[scale]"] > 1e-3
+    assert methods["oracle"]["aggregate"]["apd3d"] == 1.0
+    assert results["benchmark"]["format"] == "synthetic"
+
+
+def test_cli_errors(tmp_path, capsys):
+    assert main(["eval", "--benchmark", "sintel", "--baseline", "oracle"]) == 2
+    assert "pass --data DIR" in capsys.readouterr().err
+    assert main(["eval", "--benchmark", synthetic_benchmark.NAME]) == 2
+    assert "pass --checkpoint and/or --baseline" in capsys.readouterr().err
+    assert main(["eval", "--data", str(tmp_path), "--baseline", "oracle"]) == 2
+    assert "cannot tell the dataset format" in capsys.readouterr().err
+    assert main(["eval", "--benchmark", synthetic_benchmark.NAME, "--data", str(tmp_path), "--baseline", "oracle"]) == 2
+    assert "drop --data" in capsys.readouterr().err

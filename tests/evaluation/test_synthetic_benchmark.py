@@ -1,0 +1,59 @@
+"""synthetic-dynamic-v1: its definition is frozen, it regenerates identically, and the ground-truth
+oracle, run through the same query recipes and harness as the model, scores perfectly on every clip."""
+
+import numpy as np
+import pytest
+
+from d4rt.evaluation import synthetic_benchmark
+from d4rt.evaluation.baselines import OraclePredictor
+from d4rt.evaluation.benchmarks import get_benchmark
+from d4rt.evaluation.harness import aggregate, evaluate_sequence
+from d4rt.synthetic.sampling import MOVING_CAMERA_MOTIONS
+
+BENCHMARK = get_benchmark(synthetic_benchmark.NAME)
+
+
+def test_definition_is_frozen_and_varied():
+    specs = synthetic_benchmark.clip_specs()
+    assert len(specs) == 48 and len({s.seed for s in specs}) == 48
+    assert synthetic_benchmark.scene_fingerprint(specs) == synthetic_benchmark.SCENE_FINGERPRINT
+    aspect = {round(s.width / s.height, 2) for s in specs}
+    assert min(aspect) < 0.6 and max(aspect) >= 2.0 and len(aspect) == 6  # portrait 9:16 to 2:1
+    fovs = {s.options.fov_degrees for s in specs}
+    assert min(lo for lo, _ in fovs) == 30 and max(hi for _, hi in fovs) == 110
+    assert {s.options.camera_motion for s in specs} == set(MOVING_CAMERA_MOTIONS)  # never static
+    assert all(s.options.num_objects >= 4 and s.options.moving_fraction > 0.5 for s in specs)
+
+
+def test_regenerates_bit_for_bit():
+    spec = synthetic_benchmark.clip_specs()[7]
+    a, b = spec.render(), spec.render()
+    for name in ("rgb", "depth", "intrinsics", "cam_to_world"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert np.array_equal(a.tracks.points, b.tracks.points) and np.array_equal(a.tracks.visible, b.tracks.visible)
+
+
+def assert_perfect(metrics):
+    for align in BENCHMARK.depth_alignments:
+        assert metrics[f"abs_rel[{align}]"] < 1e-6 and metrics[f"delta<1.25[{align}]"] == 1.0
+    assert metrics["ate"] < 1e-9 and metrics["rpe_trans"] < 1e-9 and metrics["rpe_rot"] < 1e-6
+    assert metrics["auc@30"] == 1.0 and metrics["registered"] == 1.0
+    assert metrics["apd3d"] == metrics["aj"] == metrics["oa"] == 1.0
+    assert metrics["world_apd3d"] == 1.0 and metrics["world_l1"] < 1e-9
+    assert metrics["pc_l1"] < 1e-5
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("half", [0, 1])
+def test_oracle_scores_perfectly(half):
+    """All 48 clips (two halves, so two test workers share the minute of work)."""
+    names = BENCHMARK.sequence_names(None)[24 * half:24 * (half + 1)]
+    oracle = OraclePredictor()
+    rows = []
+    for name in names:
+        sequence = BENCHMARK.load(None, name)
+        assert sequence.tracks.visible.mean() > 0.3  # tracks are mostly visible, some occluded or out of view
+        row = evaluate_sequence(BENCHMARK, sequence, oracle.predict(sequence, set(BENCHMARK.tasks)))
+        assert_perfect(row.metrics)
+        rows.append(row)
+    assert_perfect(aggregate(BENCHMARK, rows))
