@@ -65,8 +65,9 @@ def test_demo_runs_with_no_arguments(tmp_path):
     # written files against the clip's ground truth) are those of an exact pipeline.
     assert "no trained model ships" in r.stdout and "oracle" in r.stdout
     errors = {name: float(re.search(rf"{name} ([0-9.e+-]+)", r.stdout).group(1))
-              for name in ("AbsRel", "ATE", "focal length error", "end-point error")}
+              for name in ("AbsRel", "ATE", "focal length error", "L1")}
     assert all(value < 1e-5 for value in errors.values()), errors
+    assert "delta<1.25 100.0%" in r.stdout and "APD3D 100.0%" in r.stdout
     assert "real footage" in r.stdout and "skipped" in r.stdout and not (tmp_path / "d4rt-demo" / "tum").exists()
 
 
