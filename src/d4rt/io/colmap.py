@@ -14,8 +14,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from d4rt.geometry.transforms import invert_rigid
-from d4rt.io.trajectory import rotation_to_quaternion
+from d4rt.geometry.transforms import invert_rigid, rotation_to_quaternion
 
 PINHOLE = 1  # COLMAP camera model id: params fx, fy, cx, cy
 _POINT2D = np.dtype([("x", "<f8"), ("y", "<f8"), ("point3D_id", "<i8")])
@@ -53,7 +52,7 @@ def write_colmap(directory: str | Path, rgb: np.ndarray, intrinsics: np.ndarray,
             f.write(np.array([k[0, 0], k[1, 1], k[0, 2] + 0.5, k[1, 2] + 0.5], dtype="<f8").tobytes())
 
     world_to_cam = invert_rigid(cam_to_world)
-    quats = rotation_to_quaternion(world_to_cam[:, :3, :3])
+    quats = rotation_to_quaternion(world_to_cam[:, :3, :3])[:, [3, 0, 1, 2]]  # COLMAP stores (w, x, y, z)
     order = np.argsort(frames, kind="stable")
     starts = np.searchsorted(frames[order], np.arange(t + 1))
     point2d_idx = np.empty(len(points), dtype=np.int32)

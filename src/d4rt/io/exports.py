@@ -190,7 +190,7 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
         raise UserError(f"timestamps must have one entry per frame ({t}), got shape {stamps.shape}")
     out = ReconstructionOutputs(rec.video, stamps, float(fps or (DEFAULT_FPS if timestamps is None else _rate(stamps))),
                                 min_confidence)
-    out_h, out_w = rec._resolution(resolution)
+    out_h, out_w = rec.output_size(resolution)
     if "depth" in needs:
         needs.add("cameras")  # the depth maps' intrinsics
     stages = [s for s in ("cameras", "depth", "points", "tracks") if s in needs]

@@ -136,7 +136,7 @@ class Reconstruction:
         has one) or (H, W): queries are continuous, so any size works (App. C).
         Returns Depth(depth (T, H, W), confidence (T, H, W)), float32.
         """
-        h, w = self._resolution(resolution)
+        h, w = self.output_size(resolution)
         uv = self._pixel_uv(h, w)
         depth = np.zeros((self.num_frames, h, w), dtype=np.float32)
         conf = np.zeros_like(depth)
@@ -342,7 +342,7 @@ class Reconstruction:
         if len(self.windows) > 1:
             raise UserError("dense tracking runs within one window; this video spans "
                             f"{len(self.windows)} windows (track a shorter clip, or each window separately)")
-        h, w = self._resolution(resolution)
+        h, w = self.output_size(resolution)
         t = self.num_frames
         frames = np.arange(t)
 
@@ -371,7 +371,9 @@ class Reconstruction:
         """Camera-to-global-world pose of one frame (through its window's Sim(3))."""
         return self._camera_grid[1][frame]
 
-    def _resolution(self, resolution) -> tuple[int, int]:
+    def output_size(self, resolution) -> tuple[int, int]:
+        """(H, W) of an output resolution: None = the input video's, "encoder" = the answerer's encoder
+        input, or an explicit (H, W)."""
         if resolution is None:
             return self.height, self.width
         if resolution == "encoder":
