@@ -79,3 +79,14 @@ def test_degenerate_inputs_allowed_for_trajectory_evaluation():
     point = torch.ones(3, 3, dtype=torch.float64)
     fit = umeyama(point, line[:3], with_scale=True, allow_degenerate=True)
     assert float(fit.scale) == 0.0 and torch.allclose(fit.apply(point), line[:3].mean(0).expand(3, 3))
+
+
+def test_rotation_quaternion_round_trip():
+    from d4rt.geometry.transforms import quaternion_to_rotation, rotation_to_quaternion
+
+    rng = np.random.default_rng(4)
+    rots = np.stack([_random_rotation(rng) for _ in range(200)] + [np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1]),
+                                                                   np.diag([-1.0, -1, 1]), np.eye(3)])
+    q = rotation_to_quaternion(rots)
+    assert np.allclose(np.linalg.norm(q, axis=1), 1) and (q[:, 3] >= 0).all()
+    assert np.allclose(quaternion_to_rotation(q), rots, atol=1e-12)

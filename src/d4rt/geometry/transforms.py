@@ -77,3 +77,26 @@ def quaternion_to_rotation(quaternion_xyzw: np.ndarray) -> np.ndarray:
         np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
         np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
     ], -2)
+
+
+def rotation_to_quaternion(rotation: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) -> unit quaternions (..., 4) in (x, y, z, w) order with w >= 0
+    (q and -q are the same rotation). Shepperd's method: divide by the largest of the four candidate
+    components, so no case loses precision."""
+    r = np.asarray(rotation, dtype=np.float64)
+    m00, m11, m22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
+    trace = m00 + m11 + m22
+    candidates = np.stack([1 + trace, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
+    pick = np.argmax(candidates, -1)
+    s = 2.0 * np.sqrt(np.take_along_axis(candidates, pick[..., None], -1)[..., 0])  # 4 * |largest|
+    d21, d02, d10 = r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]
+    s01, s02, s12 = r[..., 0, 1] + r[..., 1, 0], r[..., 0, 2] + r[..., 2, 0], r[..., 1, 2] + r[..., 2, 1]
+    by_case = np.stack([
+        np.stack([d21 / s, d02 / s, d10 / s, s / 4], -1),
+        np.stack([s / 4, s01 / s, s02 / s, d21 / s], -1),
+        np.stack([s01 / s, s / 4, s12 / s, d02 / s], -1),
+        np.stack([s02 / s, s12 / s, s / 4, d10 / s], -1),
+    ], -2)
+    q = np.take_along_axis(by_case, pick[..., None, None], -2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return q * np.where(q[..., 3:] < 0, -1.0, 1.0)

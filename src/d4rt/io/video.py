@@ -32,3 +32,35 @@ def write_video(path: str | Path, frames: np.ndarray, fps: float = 12.0) -> Path
         for packet in stream.encode():
             container.mux(packet)
     return path
+
+
+
+def read_video(path: str | Path, selection, progress: bool = False
+               ) -> tuple[list[np.ndarray], list[float], float | None]:
+    """Decode the frames of a video file that ``selection`` (a :class:`d4rt.io.frames.FrameRange`) keeps,
+    stopping as soon as it needs no more.
+
+    Returns (frames: list of (H, W, 3) uint8 RGB, timestamps: list of seconds, fps: the stream's average
+    frame rate or None). A file FFmpeg cannot open or decode raises a UserError naming it.
+    """
+    from tqdm import tqdm
+
+    frames, times = [], []
+    try:
+        with av.open(str(path)) as container:
+            if not container.streams.video:
+                raise UserError(f"{path} has no video stream")
+            stream = container.streams.video[0]
+            stream.thread_type = "AUTO"
+            fps = float(stream.average_rate) if stream.average_rate else None
+            with tqdm(total=stream.frames or None, desc="decode", unit="frame", disable=not progress) as bar:
+                for index, frame in enumerate(container.decode(stream)):
+                    if selection.done(index, len(frames)):
+                        break
+                    bar.update()
+                    if selection.keeps(index):
+                        frames.append(frame.to_ndarray(format="rgb24"))
+                        times.append(float(frame.time) if frame.time is not None else index / (fps or 1.0))
+    except av.error.FFmpegError as err:
+        raise UserError(f"cannot decode video {path}: {err.strerror or err}") from err
+    return frames, times, fps

@@ -136,7 +136,7 @@ class Reconstruction:
         has one) or (H, W): queries are continuous, so any size works (App. C).
         Returns Depth(depth (T, H, W), confidence (T, H, W)), float32.
         """
-        h, w = self._resolution(resolution)
+        h, w = self.output_size(resolution)
         uv = self._pixel_uv(h, w)
         depth = np.zeros((self.num_frames, h, w), dtype=np.float32)
         conf = np.zeros_like(depth)
@@ -342,7 +342,7 @@ class Reconstruction:
         if len(self.windows) > 1:
             raise UserError("dense tracking runs within one window; this video spans "
                             f"{len(self.windows)} windows (track a shorter clip, or each window separately)")
-        h, w = self._resolution(resolution)
+        h, w = self.output_size(resolution)
         t = self.num_frames
         frames = np.arange(t)
 
@@ -356,13 +356,24 @@ class Reconstruction:
         return DenseTracks(tracks, res["sources"], res["num_queries"], t * t * h * w, float(res["grid"].mean()),
                            (h, w))
 
+    def save(self, directory, formats="all", **options) -> list:
+        """Write the outputs ("all", or names such as ``["npz", "ply", "colmap"]``: see
+        ``d4rt.io.exports.FORMATS``) into ``directory``, atomically; ``options`` (resolution, intrinsics,
+        min_confidence, point_stride, track_grid, track_frame, timestamps, fps, progress) are those of
+        ``d4rt.io.exports.compute_outputs``. Returns the paths written."""
+        from d4rt.io.exports import save  # the I/O layer sits above this one
+
+        return save(self, directory, formats, **options)
+
     # ------------------------------------------------------------------------------------------------
 
     def _global_pose(self, frame: int) -> np.ndarray:
         """Camera-to-global-world pose of one frame (through its window's Sim(3))."""
         return self._camera_grid[1][frame]
 
-    def _resolution(self, resolution) -> tuple[int, int]:
+    def output_size(self, resolution) -> tuple[int, int]:
+        """(H, W) of an output resolution: None = the input video's, "encoder" = the answerer's encoder
+        input, or an explicit (H, W)."""
         if resolution is None:
             return self.height, self.width
         if resolution == "encoder":

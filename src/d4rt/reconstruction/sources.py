@@ -47,22 +47,28 @@ class AnswererSource:
 
 
 class ModelSource:
-    """A D4RT model over a video: each window is encoded when it is first asked for, and only the
-    window in use is kept (memory is bounded by the window, not the video)."""
+    """A D4RT model over a video: each window is encoded when it is first asked for. The most recently
+    used ``cache_windows`` encoded windows are kept (2 by default: window alignment works on
+    consecutive pairs), so memory is bounded by a few windows, not the video."""
 
-    def __init__(self, model, video, max_window: int | None = None):
+    def __init__(self, model, video, max_window: int | None = None, cache_windows: int = 2):
         self.model, self.video = model, video
         self.num_frames = int(video.shape[0])
         self.max_window = max_window or model.config.max_frames
         size = model.config.image_size
         self.encoder_size = (size, size)
-        self._current: tuple[tuple[int, int], Answerer] | None = None
+        self.cache_windows = max(1, cache_windows)
+        self._cache: dict[tuple[int, int], Answerer] = {}  # insertion order = recency
 
     def window(self, start: int, stop: int) -> Answerer:
-        if self._current is None or self._current[0] != (start, stop):
-            self._current = None  # release the previous window's tokens before encoding the next
-            self._current = ((start, stop), self.model.encode(self.video[start:stop]))
-        return self._current[1]
+        key = (start, stop)
+        if key in self._cache:
+            self._cache[key] = self._cache.pop(key)  # most recent last
+            return self._cache[key]
+        while len(self._cache) >= self.cache_windows:
+            self._cache.pop(next(iter(self._cache)))  # release the least recently used window first
+        self._cache[key] = self.model.encode(self.video[start:stop])
+        return self._cache[key]
 
 
 class _FrameRange:

@@ -1,0 +1,158 @@
+"""``d4rt reconstruct INPUT -o OUT_DIR``: a video (file, image folder or array) to every 4D output.
+
+A thin layer over the Python API: ``load_frames`` -> ``model.reconstruct`` -> ``Reconstruction.save``.
+"""
+
+from __future__ import annotations
+
+from contextlib import nullcontext
+
+import numpy as np
+from tqdm import tqdm
+
+from d4rt.errors import UserError
+from d4rt.io.exports import FORMATS
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "reconstruct", help="reconstruct a video in 4D and write depth, cameras, points, tracks and viewers",
+        description="Reconstruct a video in 4D with a D4RT model and write the outputs (units and conventions: "
+                    "docs/outputs.md).")
+    p.add_argument("input", metavar="INPUT",
+                   help="a video file (.mp4 .mov .avi .webm .mkv), a folder of images, or an .npy/.npz array "
+                        "(T, H, W, 3)")
+    p.add_argument("-o", "--out", required=True, metavar="OUT_DIR", help="output directory")
+    frames = p.add_argument_group("frames")
+    frames.add_argument("--start", type=int, default=0, help="first frame, 0-based (default: 0)")
+    frames.add_argument("--end", type=int, default=None, help="stop before this frame (default: the last)")
+    frames.add_argument("--stride", type=int, default=1, help="use every n-th frame (default: 1)")
+    frames.add_argument("--max-frames", type=int, default=None,
+                        help="use at most this many frames; videos longer than the model's window are cut into "
+                             "overlapping windows and stitched")
+    frames.add_argument("--window", type=int, default=None, help="frames per window (default: the model's maximum)")
+    frames.add_argument("--overlap", type=int, default=None, help="frames shared by consecutive windows "
+                                                                  "(default: a quarter of the window)")
+    model = p.add_argument_group("model")
+    model.add_argument("--checkpoint", metavar="DIR", default=None,
+                       help="a directory written by D4RT.save_pretrained (default: the bundled model)")
+    model.add_argument("--device", default="auto",
+                       help="torch device: auto (the default: cuda if available), cpu, cuda, cuda:1, ...")
+    model.add_argument("--bf16", action="store_true", help="run the model under bfloat16 autocast")
+    outputs = p.add_argument_group("outputs")
+    outputs.add_argument("--intrinsics", metavar="FX,FY,CX,CY", default=None,
+                         help="known intrinsics in pixels of the input frames, OpenCV convention (top-left pixel "
+                              "centre at 0,0); they replace the estimated ones")
+    outputs.add_argument("--resolution", default="original",
+                         help="depth maps at 'original' (the default: the input's size), 'encoder' (the model's "
+                              "input size) or WIDTHxHEIGHT")
+    outputs.add_argument("--min-confidence", type=float, default=None, metavar="C",
+                         help="drop points and depth pixels below this confidence (default: keep all)")
+    outputs.add_argument("--point-stride", type=int, default=None, metavar="N",
+                         help="point cloud from every n-th pixel (default: as dense as the depth maps)")
+    outputs.add_argument("--tracks", type=int, default=16, metavar="N",
+                         help="track an N x N grid of points (default: 16; 0: no tracks)")
+    outputs.add_argument("--track-frame", type=int, default=0, metavar="F",
+                         help="frame the tracked grid starts from (default: 0)")
+    outputs.add_argument("--outputs", default="all",
+                         help=f"comma-separated outputs to write (default: all): {', '.join(FORMATS)}")
+    p.set_defaults(func=run)
+
+
+def parse_intrinsics(text: str) -> np.ndarray:
+    """'fx,fy,cx,cy' (pixels) -> K (3, 3)."""
+    try:
+        fx, fy, cx, cy = (float(v) for v in text.split(","))
+    except ValueError:
+        raise UserError(f"--intrinsics must be four numbers fx,fy,cx,cy, got {text!r}") from None
+    if not all(np.isfinite([fx, fy, cx, cy])) or fx <= 0 or fy <= 0:
+        raise UserError(f"--intrinsics needs finite values and positive focal lengths, got {text!r}")
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def parse_resolution(text: str):
+    """'original' -> None, 'encoder' -> 'encoder', 'WxH' -> (H, W)."""
+    if text in ("original", "encoder"):
+        return None if text == "original" else text
+    parts = text.lower().split("x")
+    if len(parts) == 2 and all(p.isdigit() and int(p) > 0 for p in parts):
+        return int(parts[1]), int(parts[0])
+    raise UserError(f"--resolution must be 'original', 'encoder' or WIDTHxHEIGHT (e.g. 640x480), got {text!r}")
+
+
+def pick_device(name: str):
+    import torch
+
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise UserError(f"--device {name!r} is not a torch device (cpu, cuda, cuda:1, mps, ...)") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise UserError(f"--device {name}: CUDA is not available on this machine")
+    return device
+
+
+def has_bundled_model() -> bool:
+    from d4rt.model.weights import bundled_model_dir
+
+    return (bundled_model_dir() / "model.safetensors").is_file()
+
+
+def load_model(checkpoint: str | None, device):
+    from d4rt.model import D4RT
+
+    if checkpoint is None and not has_bundled_model():
+        raise UserError("no trained model ships with this version of d4rt yet: pass --checkpoint DIR (written by "
+                        "D4RT.save_pretrained), or run `d4rt demo` to see every output on a synthetic clip")
+    return D4RT.from_pretrained(checkpoint, device=device)
+
+
+class EncodeProgress:
+    """A model source (``d4rt.reconstruction.ModelSource``) that ticks an "encode" bar each time a
+    window is encoded (windows are encoded again when a later recipe comes back to them)."""
+
+    def __init__(self, source, bar):
+        self.source, self.bar, self._last = source, bar, None
+        self.num_frames, self.max_window, self.encoder_size = source.num_frames, source.max_window, source.encoder_size
+
+    def window(self, start: int, stop: int):
+        scene = self.source.window(start, stop)
+        if scene is not self._last:
+            self._last = scene
+            self.bar.update()
+        return scene
+
+
+def run(args) -> int:
+    import torch
+
+    from d4rt.io.exports import check_output_dir, parse_formats
+    from d4rt.io.frames import FrameRange, load_frames
+    from d4rt.reconstruction import ModelSource, Reconstruction
+
+    # Every option is checked before any work, so a bad one costs nothing and writes nothing.
+    intrinsics = parse_intrinsics(args.intrinsics) if args.intrinsics else None
+    resolution = parse_resolution(args.resolution)
+    formats = parse_formats(args.outputs)
+    out_dir = check_output_dir(args.out)
+    selection = FrameRange(args.start, args.end, args.stride, args.max_frames)
+    device = pick_device(args.device)
+
+    frames = load_frames(args.input, selection, progress=True)
+    model = load_model(args.checkpoint, device)
+    t, h, w = frames.rgb.shape[:3]
+    print(f"d4rt reconstruct: {t} frames of {w}x{h} from {args.input} (source frames {frames.indices[0]}.."
+          f"{frames.indices[-1]}, stride {args.stride}) with model '{model.config.name}' on {device}")
+    autocast = torch.autocast(device.type, dtype=torch.bfloat16) if args.bf16 else nullcontext()
+    with autocast, tqdm(desc="encode", unit="window", bar_format="{desc}: {n} window encodings [{elapsed}]") as bar:
+        # What model.reconstruct(video, window=, overlap=) builds, with a progress bar on the encoder.
+        source = EncodeProgress(ModelSource(model, frames.rgb, max_window=args.window), bar)
+        rec = Reconstruction(source, frames.rgb, window=args.window, overlap=args.overlap, progress=True)
+        paths = rec.save(out_dir, formats, resolution=resolution, intrinsics=intrinsics,
+                         min_confidence=args.min_confidence, point_stride=args.point_stride, track_grid=args.tracks,
+                         track_frame=args.track_frame, timestamps=frames.timestamps if frames.has_clock else None,
+                         fps=frames.fps, progress=True)
+    print(f"wrote {out_dir}/: {', '.join(p.name + ('/' if p.is_dir() else '') for p in paths)}")
+    return 0

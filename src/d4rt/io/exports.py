@@ -1,0 +1,331 @@
+"""Writing a reconstruction to files people can open: numpy arrays, depth PNGs and video, PLY, GLB, a
+COLMAP model, a TUM trajectory, a track-overlay video, a rerun recording and an offline HTML viewer.
+
+The queries run once (:func:`compute_outputs`, only what the chosen formats need), then each format is
+written from the same arrays. Everything is written into a hidden staging folder next to the output
+folder and moved into place only when every file is complete, so a failure leaves nothing half-written.
+Units and conventions of every file: ``docs/outputs.md``.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from d4rt.errors import UserError
+from d4rt.geometry.view import View
+from d4rt.io.colmap import write_colmap
+from d4rt.io.depth_png import write_depth_pngs
+from d4rt.io.glb import write_glb
+from d4rt.io.ply import write_ply
+from d4rt.io.trajectory import write_tum
+from d4rt.io.video import write_video
+from d4rt.viz.colormaps import depth_to_rgb
+from d4rt.viz.frusta import frustum_segments
+from d4rt.viz.html_viewer import write_html
+from d4rt.viz.overlay import draw_tracks, project_tracks, track_colors
+from d4rt.viz.rerun_recording import rerun_available, write_rrd
+
+# Format name -> what it writes (in OUT_DIR), in the order they are written.
+FORMATS = {
+    "npz": "reconstruction.npz",
+    "depth": "depth/000000.png ... (16-bit) + depth/depth_scale.json",
+    "depth-video": "depth.mp4",
+    "ply": "points.ply",
+    "glb": "scene.glb",
+    "colmap": "colmap/images/, colmap/sparse/0/",
+    "tum": "trajectory_tum.txt",
+    "tracks-video": "tracks.mp4",
+    "rerun": "reconstruction.rrd",
+    "html": "viewer.html",
+}
+# What each format needs decoded.
+_NEEDS = {
+    "npz": {"depth", "cameras", "points", "tracks"},
+    "depth": {"depth"},
+    "depth-video": {"depth"},
+    "ply": {"points"},
+    "glb": {"points", "cameras"},
+    "colmap": {"points", "cameras"},
+    "tum": {"cameras"},
+    "tracks-video": {"tracks", "cameras"},
+    "rerun": {"depth", "cameras", "points", "tracks"},
+    "html": {"points", "cameras", "tracks"},
+}
+DEFAULT_FPS = 10.0  # for the videos and the viewer when the input has no clock
+
+
+@dataclass
+class ReconstructionOutputs:
+    """Every array the exports write (the contents of ``reconstruction.npz``); None where not computed.
+
+    Input: rgb (T, H, W, 3) uint8; timestamps (T,) seconds (or frame numbers); fps.
+    Depth at the output resolution (h, w): depth (T, h, w) z-depth (all of it: the confidence threshold
+    applies to the PNGs and the video), confidence (T, h, w), intrinsics (T, 3, 3) in pixels of the
+    depth maps.
+    Cameras: video_intrinsics (T, 3, 3) in pixels of the input frames; cam_to_world (T, 4, 4), the world
+    being camera 0 (OpenCV axes).
+    Point cloud (world, confidence-filtered): points (M, 3), point_colors (M, 3) uint8,
+    point_confidence (M,), point_frames (M,) frame seen in (and time shown at), point_pixels (M, 2) its
+    (x, y) pixel there.
+    Tracks: track_queries (N, 3) [t_src, x, y] input pixels; tracks (N, T, 3) world positions;
+    track_visibility (N, T) probability; track_confidence (N, T); track_uv (N, T, 2) normalised 2D
+    position (NaN where unknown).
+    """
+
+    rgb: np.ndarray
+    timestamps: np.ndarray
+    fps: float
+    min_confidence: float | None = None
+    depth: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+    intrinsics: np.ndarray | None = None
+    video_intrinsics: np.ndarray | None = None
+    cam_to_world: np.ndarray | None = None
+    points: np.ndarray | None = None
+    point_colors: np.ndarray | None = None
+    point_confidence: np.ndarray | None = None
+    point_frames: np.ndarray | None = None
+    point_pixels: np.ndarray | None = None
+    track_queries: np.ndarray | None = None
+    tracks: np.ndarray | None = None
+    track_visibility: np.ndarray | None = None
+    track_confidence: np.ndarray | None = None
+    track_uv: np.ndarray | None = None
+
+    @property
+    def num_frames(self) -> int:
+        return self.rgb.shape[0]
+
+    def depth_valid(self) -> np.ndarray:
+        """(T, h, w) bool: finite positive depth at or above the confidence threshold."""
+        ok = np.isfinite(self.depth) & (self.depth > 0)
+        if self.min_confidence is not None:
+            ok &= self.confidence >= self.min_confidence
+        return ok
+
+    def track_pixels(self) -> tuple[np.ndarray, np.ndarray]:
+        """The 3D tracks projected into each frame's camera: pixels (N, T, 2) of the input frames and
+        visible (N, T) bool (visibility > 0.5, in front of the camera, finite)."""
+        xy, z = project_tracks(self.tracks, self.video_intrinsics, self.cam_to_world)
+        visible = (self.track_visibility > 0.5) & (z > 0) & np.isfinite(xy).all(-1)
+        return xy, visible
+
+    def track_colors(self) -> np.ndarray:
+        return track_colors(self.track_queries[:, 1:], self.rgb.shape[2])
+
+    def frusta(self) -> np.ndarray:
+        """(T, 8, 2, 3) camera frusta, 8% of the median camera-to-point distance deep."""
+        centres = self.cam_to_world[:, :3, 3]
+        if self.points is not None and len(self.points):
+            reach = float(np.median(np.linalg.norm(self.points - centres[self.point_frames], axis=1)))
+        else:
+            reach = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum()) or 1.0
+        h, w = self.rgb.shape[1:3]
+        return frustum_segments(self.video_intrinsics, self.cam_to_world, h, w, 0.08 * reach)
+
+
+def parse_formats(formats) -> list[str]:
+    """"all", a comma-separated string or a list of names -> the list of format names (in FORMATS
+    order). With "all", the rerun recording is left out (with a notice) when rerun-sdk is missing; asked
+    for by name, it is an error."""
+    if isinstance(formats, str):
+        names = list(FORMATS) if formats == "all" else [f.strip() for f in formats.split(",") if f.strip()]
+        everything = formats == "all"
+    else:
+        names, everything = list(formats), False
+    unknown = [n for n in names if n not in FORMATS]
+    if unknown or not names:
+        raise UserError(f"unknown output format(s) {unknown or names}; choose from all, {', '.join(FORMATS)}")
+    if "rerun" in names and not rerun_available():
+        if not everything:
+            raise UserError("the rerun output needs the rerun-sdk package: pip install 'd4rt[viewer]'")
+        print("d4rt: skipping reconstruction.rrd: rerun-sdk is not installed (pip install 'd4rt[viewer]')",
+              file=sys.stderr)
+        names.remove("rerun")
+    return [n for n in FORMATS if n in names]
+
+
+def check_output_dir(directory: str | Path) -> Path:
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise UserError(f"output {directory} exists and is not a directory")
+    return directory
+
+
+def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, min_confidence: float | None = None,
+                    point_stride: int | None = None, track_grid: int = 16, track_frame: int = 0,
+                    timestamps=None, fps: float | None = None, progress: bool = False) -> ReconstructionOutputs:
+    """Decode what ``formats`` need from a :class:`d4rt.reconstruction.Reconstruction`.
+
+    resolution: depth maps at None (the input's size, continuous queries), "encoder" or (H, W).
+    intrinsics: known (3, 3) or (T, 3, 3) intrinsics in pixels of the input frames (OpenCV centres);
+    they replace the estimate and are rescaled for the depth maps' resolution. min_confidence: points
+    and depth pixels below it are dropped (None: keep every positive confidence). point_stride: point
+    cloud from every n-th pixel of the input (default: the input-to-output size ratio, so the cloud is
+    about as dense as the depth maps). track_grid: tracks start from a track_grid x track_grid grid of
+    pixels of frame ``track_frame`` (0: no tracks). timestamps: (T,) seconds (default: frame numbers);
+    fps: for the videos and the viewer (default: from the timestamps, else 10).
+    """
+    t, h, w = rec.video.shape[:3]
+    needs = set().union(*(_NEEDS[f] for f in formats))
+    if min_confidence is not None and not np.isfinite(min_confidence):
+        raise UserError(f"the confidence threshold must be a finite number, got {min_confidence}")
+    if track_grid < 0:
+        raise UserError(f"the track grid must be >= 0 points per side, got {track_grid}")
+    if not 0 <= track_frame < t:
+        raise UserError(f"the track frame must be in [0, {t - 1}], got {track_frame}")
+    if point_stride is not None and point_stride < 1:
+        raise UserError(f"the point stride must be >= 1, got {point_stride}")
+    stamps = np.arange(t, dtype=np.float64) if timestamps is None else np.asarray(timestamps, dtype=np.float64)
+    if stamps.shape != (t,):
+        raise UserError(f"timestamps must have one entry per frame ({t}), got shape {stamps.shape}")
+    out = ReconstructionOutputs(rec.video, stamps, float(fps or (DEFAULT_FPS if timestamps is None else _rate(stamps))),
+                                min_confidence)
+    out_h, out_w = rec.output_size(resolution)
+    if "depth" in needs:
+        needs.add("cameras")  # the depth maps' intrinsics
+    stages = [s for s in ("cameras", "depth", "points", "tracks") if s in needs]
+    bar = tqdm(stages, desc="query", unit="stage", disable=not progress)
+    for stage in bar:
+        bar.set_postfix_str(stage)
+        if stage == "cameras":
+            cams = rec.cameras(intrinsics=intrinsics)
+            out.video_intrinsics, out.cam_to_world = cams.intrinsics, cams.cam_to_world
+        elif stage == "depth":
+            depth = rec.depth(resolution)
+            out.depth, out.confidence = depth.depth, depth.confidence
+            resize = View((h, w), (0, 0, w, h), (out_h, out_w), tuple(range(t)))
+            out.intrinsics = resize.intrinsics(out.video_intrinsics)
+        elif stage == "points":
+            stride = point_stride or max(1, int(min(h / out_h, w / out_w)))
+            cloud = rec.point_cloud(stride=stride, min_confidence=min_confidence)
+            out.points, out.point_colors, out.point_confidence = cloud.points, cloud.colors, cloud.confidence
+            out.point_frames, out.point_pixels = cloud.frames, cloud.pixels
+        elif stage == "tracks":
+            side = (np.arange(track_grid) + 0.5) / max(track_grid, 1)
+            xs, ys = np.meshgrid(side * w - 0.5, side * h - 0.5)
+            out.track_queries = np.stack([np.full(xs.size, float(track_frame)), xs.ravel(), ys.ravel()], 1)
+            if track_grid:
+                tracks = rec.tracks(out.track_queries, frame="world")
+                out.tracks, out.track_visibility = tracks.points, tracks.visibility
+                out.track_confidence, out.track_uv = tracks.confidence, tracks.uv
+            else:
+                out.tracks, out.track_uv = np.zeros((0, t, 3)), np.zeros((0, t, 2))
+                out.track_visibility, out.track_confidence = np.zeros((0, t)), np.zeros((0, t))
+    return out
+
+
+def _rate(stamps: np.ndarray) -> float:
+    steps = np.diff(stamps)
+    return 1.0 / float(np.median(steps)) if len(steps) and np.median(steps) > 0 else DEFAULT_FPS
+
+
+def save(rec, directory: str | Path, formats="all", *, progress: bool = False, **options) -> list[Path]:
+    """Decode and write the chosen formats (names in FORMATS, "all", or a comma-separated string) into
+    ``directory``; ``options`` go to :func:`compute_outputs`. Returns the paths written."""
+    names = parse_formats(formats)
+    directory = check_output_dir(directory)
+    outputs = compute_outputs(rec, names, progress=progress, **options)
+    return write_outputs(outputs, directory, names, progress=progress)
+
+
+def write_outputs(out: ReconstructionOutputs, directory: str | Path, formats, progress: bool = False,
+                  title: str | None = None) -> list[Path]:
+    """Write already-decoded outputs (atomically: see the module docstring)."""
+    names = parse_formats(formats)
+    directory = check_output_dir(directory)
+    title = title or directory.name
+    written = []
+    with _staging(directory) as stage:
+        for name in tqdm(names, desc="write", unit="file", disable=not progress):
+            written.append(_WRITERS[name](out, stage, title))
+    return [directory / p.relative_to(stage) for p in written]
+
+
+def _write_npz(out: ReconstructionOutputs, stage: Path, title: str) -> Path:
+    arrays = {f.name: getattr(out, f.name) for f in fields(out) if f.name not in ("rgb", "fps", "min_confidence")}
+    arrays.update(fps=np.float64(out.fps), video_size=np.array(out.rgb.shape[1:3]),
+                  min_confidence=np.float64(np.nan if out.min_confidence is None else out.min_confidence))
+    path = stage / "reconstruction.npz"
+    np.savez_compressed(path, **{k: v for k, v in arrays.items() if v is not None})
+    return path
+
+
+def _write_depth(out, stage, title):
+    write_depth_pngs(stage / "depth", out.depth, out.depth_valid())
+    return stage / "depth"
+
+
+def _write_depth_video(out, stage, title):
+    return write_video(stage / "depth.mp4", depth_to_rgb(np.where(out.depth_valid(), out.depth, 0)), fps=out.fps)
+
+
+def _write_ply(out, stage, title):
+    return write_ply(stage / "points.ply", out.points, out.point_colors, out.point_confidence, out.point_frames)
+
+
+def _write_glb(out, stage, title):
+    return write_glb(stage / "scene.glb", out.points, out.point_colors, out.frusta())
+
+
+def _write_colmap(out, stage, title):
+    return write_colmap(stage / "colmap", out.rgb, out.video_intrinsics, out.cam_to_world, out.points,
+                        out.point_colors, out.point_frames, out.point_pixels)
+
+
+def _write_tum(out, stage, title):
+    return write_tum(stage / "trajectory_tum.txt", out.timestamps, out.cam_to_world)
+
+
+def _write_tracks_video(out, stage, title):
+    xy, visible = out.track_pixels()
+    return write_video(stage / "tracks.mp4", draw_tracks(out.rgb, xy, visible, out.track_colors()), fps=out.fps)
+
+
+def _write_rerun(out, stage, title):
+    return write_rrd(stage / "reconstruction.rrd", out.rgb, out.depth, out.video_intrinsics, out.cam_to_world,
+                     out.points, out.point_colors, out.point_frames, out.tracks, out.track_pixels()[1],
+                     out.track_colors(), out.timestamps)
+
+
+def _write_html(out, stage, title):
+    return write_html(stage / "viewer.html", out.points, out.point_colors, out.point_frames, out.cam_to_world,
+                      out.frusta(), out.tracks, out.track_pixels()[1], out.track_colors(), out.fps, out.timestamps,
+                      title=title)
+
+
+_WRITERS = {"npz": _write_npz, "depth": _write_depth, "depth-video": _write_depth_video, "ply": _write_ply,
+            "glb": _write_glb, "colmap": _write_colmap, "tum": _write_tum, "tracks-video": _write_tracks_video,
+            "rerun": _write_rerun, "html": _write_html}
+
+
+@contextmanager
+def _staging(directory: Path):
+    """A fresh hidden folder beside ``directory`` (same file system, so moves are renames). On success its
+    entries replace those of the same name in ``directory`` (created if needed); on any error it is
+    removed and ``directory`` is untouched."""
+    anchor = directory.parent
+    while not anchor.exists():
+        anchor = anchor.parent
+    stage = Path(tempfile.mkdtemp(prefix=f".{directory.name}.partial-", dir=anchor))
+    try:
+        yield stage
+        directory.mkdir(parents=True, exist_ok=True)
+        old = stage / ".replaced"
+        old.mkdir()
+        for entry in sorted(p for p in stage.iterdir() if p != old):
+            target = directory / entry.name
+            if target.exists() or target.is_symlink():
+                os.replace(target, old / entry.name)
+            os.replace(entry, target)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)

@@ -1,0 +1,229 @@
+"""`d4rt reconstruct` end to end through the console entry point: a generated mp4, an image folder and the
+bundled real TUM RGB-D frames give every output, and each output parses; every bad input gives one clear
+line, exit status 2, no traceback, and no output folder.
+
+No trained model ships yet, so the model is a random-weight tiny one saved with save_pretrained: its
+outputs are meaningless but must exist and parse (their geometry is checked on the oracle in tests/io).
+"""
+
+import json
+import re
+import subprocess
+import sys
+from importlib.resources import files
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+import torch
+import trimesh
+from PIL import Image
+
+from d4rt.cli import main
+from d4rt.config import D4RTConfig
+from d4rt.io.exports import FORMATS, rerun_available
+from d4rt.io.video import write_video
+from d4rt.model import D4RT
+from d4rt.synthetic import render_clip
+
+TUM = Path(str(files("d4rt") / "assets" / "tum-fr3-long-office-household" / "rgb"))
+
+
+def run_cli(*args, timeout=600):
+    """Through the real console entry point (a new interpreter)."""
+    return subprocess.run([sys.executable, "-m", "d4rt", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+@pytest.fixture
+def cli(capsys):
+    """The same ``main`` in this process (no interpreter and torch start-up per call): (status, out, err)."""
+
+    def call(*args):
+        status = main([str(a) for a in args])
+        captured = capsys.readouterr()
+        return subprocess.CompletedProcess(args, status, captured.out, captured.err)
+
+    return call
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    torch.manual_seed(0)
+    return D4RT(D4RTConfig.preset("tiny")).save_pretrained(tmp_path_factory.mktemp("ckpt") / "tiny")
+
+
+@pytest.fixture(scope="module")
+def clip():
+    return render_clip(2, 8, 24, 32, environment="room", num_objects=3, camera_motion="orbit")
+
+
+def check_outputs(out: Path, t: int, h: int, w: int, depth_size: tuple[int, int], num_tracks: int):
+    """Every output of `d4rt reconstruct` exists and parses, with the expected sizes."""
+    with np.load(out / "reconstruction.npz") as npz:
+        m = len(npz["points"])
+        expected = {"depth": (t, *depth_size), "confidence": (t, *depth_size), "intrinsics": (t, 3, 3),
+                    "video_intrinsics": (t, 3, 3), "cam_to_world": (t, 4, 4), "points": (m, 3),
+                    "point_colors": (m, 3), "point_frames": (m,), "tracks": (num_tracks, t, 3),
+                    "track_visibility": (num_tracks, t), "timestamps": (t,)}
+        for key, shape in expected.items():
+            assert npz[key].shape == shape, key
+        assert np.isfinite(npz["cam_to_world"]).all() and m > 0
+    scale = json.loads((out / "depth" / "depth_scale.json").read_text())["depth_scale"]
+    assert scale > 0 and len(list((out / "depth").glob("*.png"))) == t
+    assert Image.open(out / "depth" / "000000.png").size == depth_size[::-1]
+    for video in ("depth.mp4", "tracks.mp4"):
+        with av.open(str(out / video)) as container:
+            assert sum(1 for _ in container.decode(video=0)) == t, video
+    header = (out / "points.ply").read_bytes().split(b"end_header\n")[0].decode()
+    assert "format binary_little_endian 1.0" in header and f"element vertex {m}\n" in header
+    scene = trimesh.load(out / "scene.glb")
+    assert {"points", "cameras"} <= set(scene.geometry)
+    pycolmap = pytest.importorskip("pycolmap")
+    model = pycolmap.Reconstruction(str(out / "colmap" / "sparse" / "0"))
+    assert model.num_images() == t and model.num_points3D() == m
+    assert len(list((out / "colmap" / "images").glob("*.png"))) == t
+    rows = [line.split() for line in (out / "trajectory_tum.txt").read_text().splitlines() if line[0] != "#"]
+    assert len(rows) == t and all(len(r) == 8 for r in rows)
+    assert (out / "reconstruction.rrd").is_file() == rerun_available()
+    assert "d4rt-data" in (out / "viewer.html").read_text()
+    assert not list(out.parent.glob(".*partial*"))
+
+
+def test_mp4_every_output(tmp_path, clip, checkpoint):
+    video = write_video(tmp_path / "in.mp4", clip.rgb, fps=12)
+    r = run_cli("reconstruct", video, "-o", tmp_path / "out", "--checkpoint", checkpoint, "--tracks", "4")
+    assert r.returncode == 0, r.stderr
+    check_outputs(tmp_path / "out", 8, 24, 32, (24, 32), 16)
+    for stage in ("decode", "encode", "query", "decoding queries", "write"):
+        assert f"{stage}:" in r.stderr, stage  # progress bars
+    assert "8 frames of 32x24" in r.stdout and "wrote" in r.stdout
+    stamps = np.load(tmp_path / "out" / "reconstruction.npz")["timestamps"]
+    np.testing.assert_allclose(stamps, np.arange(8) / 12, atol=1e-6)  # the video's clock
+
+
+def test_image_folder_with_range_and_encoder_resolution(tmp_path, clip, checkpoint, cli):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i, frame in enumerate(clip.rgb):
+        Image.fromarray(frame).save(folder / f"frame{i}.png")
+    r = cli("reconstruct", folder, "-o", tmp_path / "out", "--checkpoint", checkpoint, "--start", "1",
+                "--stride", "2", "--resolution", "encoder", "--tracks", "3", "--outputs", "npz,depth,ply,tum")
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["depth", "points.ply", "reconstruction.npz",
+                                                                    "trajectory_tum.txt"]
+    with np.load(tmp_path / "out" / "reconstruction.npz") as npz:
+        assert npz["depth"].shape == (4, 64, 64) and npz["tracks"].shape == (9, 4, 3)  # tiny: 64x64 encoder
+
+
+def test_real_tum_frames_every_output_with_known_intrinsics(tmp_path, checkpoint, cli):
+    fx, fy, cx, cy = 535.4, 539.2, 320.1, 247.6
+    r = cli("reconstruct", TUM, "-o", tmp_path / "out", "--checkpoint", checkpoint, "--resolution", "32x24",
+                "--point-stride", "40", "--tracks", "3", "--intrinsics", f"{fx},{fy},{cx},{cy}")
+    assert r.returncode == 0, r.stderr
+    check_outputs(tmp_path / "out", 17, 480, 640, (24, 32), 9)
+    with np.load(tmp_path / "out" / "reconstruction.npz") as npz:
+        np.testing.assert_allclose(npz["video_intrinsics"][5], [[fx, 0, cx], [0, fy, cy], [0, 0, 1]])
+        # The same camera for the 32x24 depth maps: sizes scale by 1/20, pixel centres stay centres.
+        np.testing.assert_allclose(npz["intrinsics"][5], [[fx / 20, 0, (cx + 0.5) / 20 - 0.5],
+                                                          [0, fy / 20, (cy + 0.5) / 20 - 0.5], [0, 0, 1]])
+        assert npz["timestamps"][0] == pytest.approx(1341847980.722988)  # the file names are capture times
+
+
+def test_long_video_windows_under_bf16(tmp_path, clip, checkpoint, cli):
+    """More frames than one window: windows encoded one by one and stitched, under bf16 autocast."""
+    video = tmp_path / "v.npy"
+    np.save(video, clip.rgb)
+    r = cli("reconstruct", video, "-o", tmp_path / "out", "--checkpoint", checkpoint, "--max-frames", "7",
+            "--window", "4", "--overlap", "2", "--bf16", "--tracks", "2", "--outputs", "npz,tum")
+    assert r.returncode == 0, r.stderr
+    # Windows [0, 4), [2, 6), [3, 7); the source keeps one encoded window, so recipes that go back to a
+    # window encode it again.
+    assert int(re.findall(r"encode: (\d+) window encodings", r.stderr)[-1]) >= 3
+    with np.load(tmp_path / "out" / "reconstruction.npz") as npz:
+        assert npz["depth"].shape == (7, 24, 32) and np.isfinite(npz["cam_to_world"]).all()
+        np.testing.assert_allclose(npz["cam_to_world"][0], np.eye(4), atol=1e-9)
+
+
+def _make_bad_inputs(d: Path, clip):
+    empty = d / "empty.mp4"
+    empty.write_bytes(b"")
+    corrupt = d / "corrupt.mp4"
+    corrupt.write_bytes(b"\x00\x00\x00\x18ftypmp42 then garbage" * 20)
+    text = d / "notes.txt"
+    text.write_text("hello")
+    no_images = d / "no_images"
+    no_images.mkdir()
+    (no_images / "readme.md").write_text("nothing here")
+    mixed = d / "mixed"
+    mixed.mkdir()
+    Image.fromarray(clip.rgb[0]).save(mixed / "0.png")
+    Image.fromarray(clip.rgb[1, :, :16]).save(mixed / "1.png")
+    one = d / "one.npy"
+    np.save(one, clip.rgb[:1])
+    return {
+        "missing": (d / "nope.mp4", "does not exist"),
+        "empty": (empty, "is empty"),
+        "corrupt": (corrupt, "cannot decode video"),
+        "unsupported": (text, "unsupported input type '.txt'"),
+        "no images": (no_images, "no images"),
+        "mixed sizes": (mixed, "mixed sizes"),
+        "too few frames": (one, "at least 2 are needed"),
+    }
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "corrupt", "unsupported", "no images", "mixed sizes",
+                                  "too few frames"])
+def test_bad_inputs_one_line_and_nothing_written(tmp_path, clip, checkpoint, cli, case):
+    path, message = _make_bad_inputs(tmp_path, clip)[case]
+    out = tmp_path / "results" / "run"
+    call = run_cli if case == "corrupt" else cli  # one of them through the console entry point
+    r = call("reconstruct", path, "-o", out, "--checkpoint", checkpoint)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("d4rt reconstruct: error: ") and message in lines[0], r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "results").exists()
+
+
+def test_checkpoint_errors(tmp_path, clip, checkpoint, cli):
+    video = tmp_path / "v.npy"
+    np.save(video, clip.rgb)
+    r = cli("reconstruct", video, "-o", tmp_path / "out")  # no --checkpoint: no bundled model yet
+    assert r.returncode == 2 and "pass --checkpoint DIR" in r.stderr and "d4rt demo" in r.stderr
+    mismatched = tmp_path / "mismatched"
+    mismatched.mkdir()
+    (mismatched / "model.safetensors").write_bytes((checkpoint / "model.safetensors").read_bytes())
+    config = json.loads((checkpoint / "config.json").read_text())
+    config["decoder_depth"] = config["decoder_depth"] + 1
+    (mismatched / "config.json").write_text(json.dumps(config))
+    for ckpt, message in ((mismatched, "missing"), (tmp_path / "absent", "absent")):
+        r = cli("reconstruct", video, "-o", tmp_path / "out", "--checkpoint", ckpt)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and message in lines[0] and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_bad_options_and_debug(tmp_path, clip, cli):
+    video = tmp_path / "v.npy"
+    np.save(video, clip.rgb)
+    for option, message in ((["--intrinsics", "500,500,320"], "--intrinsics must be four numbers"),
+                            (["--intrinsics", "0,500,320,240"], "positive focal lengths"),
+                            (["--resolution", "big"], "--resolution must be"),
+                            (["--outputs", "ply,obj"], "unknown output format"),
+                            (["--stride", "0"], "stride must be >= 1"),
+                            (["--device", "cuda:7"] if not torch.cuda.is_available() else ["--device", "nonsense"],
+                             "--device")):
+        r = cli("reconstruct", video, "-o", tmp_path / "out", *option)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and message in lines[0], (option, r.stderr)
+    r = cli("reconstruct", tmp_path / "missing.mp4", "-o", tmp_path / "out", "--debug")
+    assert r.returncode == 2 and "Traceback" in r.stderr and r.stderr.strip().endswith("does not exist")
+    assert not (tmp_path / "out").exists()
+
+
+def test_every_format_has_a_cli_name(capsys):
+    with pytest.raises(SystemExit) as done:
+        main(["reconstruct", "--help"])
+    text = "".join(capsys.readouterr().out.split())  # the help wraps lines anywhere, even at hyphens
+    assert done.value.code == 0 and all(name in text for name in FORMATS)

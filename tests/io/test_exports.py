@@ -1,0 +1,246 @@
+"""Every export of a reconstruction, written from a synthetic clip's exact oracle and read back with the
+tools people use (numpy, trimesh, pycolmap, rerun, PyAV), checked against the clip's ground truth."""
+
+import json
+import struct
+import subprocess
+import sys
+
+import av
+import numpy as np
+import pytest
+import trimesh
+from trimesh.transformations import quaternion_matrix
+
+from d4rt.errors import UserError
+from d4rt.geometry.camera import pixel_to_uv, unproject_depth
+from d4rt.geometry.transforms import apply_transform, invert_rigid
+from d4rt.io import exports
+from d4rt.io.depth_png import read_depth_png
+from d4rt.synthetic import render_clip
+from d4rt.viz.overlay import project_tracks
+
+GRID = 5
+
+
+@pytest.fixture(scope="module")
+def clip():
+    return render_clip(3, 5, 30, 40, environment="room", num_objects=4, camera_motion="orbit", moving_fraction=0.8)
+
+
+@pytest.fixture(scope="module")
+def saved(clip, tmp_path_factory):
+    out = tmp_path_factory.mktemp("exports") / "out"
+    formats = [f for f in exports.FORMATS if f != "rerun" or exports.rerun_available()]
+    paths = clip.reconstruction().save(out, formats, track_grid=GRID, timestamps=np.arange(5) / 12.0, fps=12.0)
+    assert sorted(p.name for p in paths) == sorted(exports.FORMATS[f].split("/")[0].split(" ")[0].rstrip(",")
+                                                    for f in formats)
+    with np.load(out / "reconstruction.npz") as npz:
+        return out, dict(npz)
+
+
+def _gt_poses(clip):
+    return invert_rigid(clip.cam_to_world[0]) @ clip.cam_to_world  # world = camera 0
+
+
+def test_npz_holds_every_array_and_matches_ground_truth(clip, saved):
+    _, npz = saved
+    t, h, w = clip.depth.shape
+    shapes = {"depth": (t, h, w), "confidence": (t, h, w), "intrinsics": (t, 3, 3), "video_intrinsics": (t, 3, 3),
+              "cam_to_world": (t, 4, 4), "timestamps": (t,), "points": (t * h * w, 3), "point_colors": (t * h * w, 3),
+              "point_confidence": (t * h * w,), "point_frames": (t * h * w,), "point_pixels": (t * h * w, 2),
+              "track_queries": (GRID * GRID, 3), "tracks": (GRID * GRID, t, 3), "track_visibility": (GRID * GRID, t),
+              "track_confidence": (GRID * GRID, t), "track_uv": (GRID * GRID, t, 2), "video_size": (2,)}
+    for key, shape in shapes.items():
+        assert npz[key].shape == shape, key
+    np.testing.assert_allclose(npz["depth"], clip.depth, rtol=1e-5)
+    np.testing.assert_allclose(npz["cam_to_world"], _gt_poses(clip), atol=1e-6)
+    np.testing.assert_allclose(npz["video_intrinsics"], clip.intrinsics, rtol=1e-6)
+    np.testing.assert_array_equal(npz["intrinsics"], npz["video_intrinsics"])  # depth at the input's size
+    # Each point is its pixel's ground-truth depth, unprojected and moved into camera 0.
+    f, (x, y) = npz["point_frames"], npz["point_pixels"].T
+    cam_points = unproject_depth(clip.depth.astype(np.float64), clip.intrinsics)[f, y, x]
+    np.testing.assert_allclose(npz["points"], apply_transform(_gt_poses(clip)[f], cam_points), atol=1e-4)
+    np.testing.assert_array_equal(npz["point_colors"], clip.rgb[f, y, x])
+
+
+def test_known_intrinsics_hold_at_another_output_resolution(clip, tmp_path):
+    """Intrinsics given in input pixels are rescaled for depth maps of another size (here another aspect
+    ratio too): unprojecting the saved depth with the saved intrinsics gives the true 3D points."""
+    h, w = 21, 17
+    assert np.ptp(clip.intrinsics[:, 0, 0]) > 1  # this clip zooms: one K per frame
+    clip.reconstruction().save(tmp_path / "o", ["npz"], resolution=(h, w), intrinsics=clip.intrinsics)
+    with np.load(tmp_path / "o" / "reconstruction.npz") as npz:
+        depth, k = npz["depth"], npz["intrinsics"]
+        np.testing.assert_array_equal(npz["video_intrinsics"], clip.intrinsics)
+    assert depth.shape == (5, h, w)
+    ys, xs = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
+    uv = pixel_to_uv(np.stack([xs, ys], -1).reshape(-1, 2).astype(np.float64), h, w)
+    for t in (0, 4):
+        q = np.concatenate([uv, np.full((len(uv), 3), float(t))], 1)
+        truth = clip.oracle.query(q)["points"].numpy().reshape(h, w, 3)
+        np.testing.assert_allclose(unproject_depth(depth[t].astype(np.float64), k[t]), truth, atol=1e-4)
+
+
+def test_depth_pngs_round_trip(clip, saved):
+    out, _ = saved
+    scale = json.loads((out / "depth" / "depth_scale.json").read_text())["depth_scale"]
+    assert sorted(p.name for p in (out / "depth").glob("*.png")) == [f"{i:06d}.png" for i in range(5)]
+    for t in (0, 4):
+        back = read_depth_png(out / "depth" / f"{t:06d}.png", scale)
+        np.testing.assert_allclose(back, clip.depth[t], atol=0.5 / scale + 1e-6)
+
+
+def test_confidence_threshold_filters_points_and_depth_pixels(clip, tmp_path):
+    rec = clip.reconstruction()  # the oracle's confidence is 1 wherever it answers
+    kept = exports.compute_outputs(rec, ["ply", "depth"], min_confidence=0.5, point_stride=4)
+    dropped = exports.compute_outputs(rec, ["ply", "depth"], min_confidence=1.5, point_stride=4)
+    assert len(kept.points) == 5 * 8 * 10 and len(dropped.points) == 0
+    assert kept.depth_valid().all() and not dropped.depth_valid().any()
+    exports.write_outputs(dropped, tmp_path / "o", ["depth", "ply"])
+    scale = json.loads((tmp_path / "o" / "depth" / "depth_scale.json").read_text())["depth_scale"]
+    assert not read_depth_png(tmp_path / "o" / "depth" / "000000.png", scale).any()
+
+
+def _read_ply(path):
+    data = path.read_bytes()
+    head, body = data.split(b"end_header\n", 1)
+    lines = head.decode("ascii").splitlines()
+    count = int(next(line for line in lines if line.startswith("element vertex")).split()[-1])
+    props = [tuple(line.split()[1:]) for line in lines if line.startswith("property")]
+    kinds = {"float": "<f4", "uchar": "u1", "int": "<i4"}
+    return lines, np.frombuffer(body, dtype=np.dtype([(n, kinds[k]) for k, n in props]), count=count)
+
+
+def test_ply_header_count_and_values(saved):
+    out, npz = saved
+    lines, vertices = _read_ply(out / "points.ply")
+    assert lines[1] == "format binary_little_endian 1.0" and len(vertices) == len(npz["points"])
+    np.testing.assert_array_equal(np.stack([vertices[a] for a in "xyz"], 1), npz["points"])
+    np.testing.assert_array_equal(np.stack([vertices[c] for c in ("red", "green", "blue")], 1), npz["point_colors"])
+    np.testing.assert_array_equal(vertices["frame"], npz["point_frames"])
+
+
+def test_glb_loads_with_trimesh_in_gltf_axes(saved):
+    out, npz = saved
+    scene = trimesh.load(out / "scene.glb")
+    assert set(scene.geometry) == {"points", "cameras"}
+    transform, name = scene.graph["points"]
+    cloud = trimesh.transform_points(scene.geometry[name].vertices, transform)
+    np.testing.assert_allclose(cloud, npz["points"] * [1, -1, -1], atol=1e-5)  # OpenCV -> glTF (y up)
+    transform, name = scene.graph["cameras"]
+    assert isinstance(scene.geometry[name], trimesh.path.Path3D)
+    lines = trimesh.transform_points(scene.geometry[name].vertices, transform)
+    for centre in npz["cam_to_world"][:, :3, 3] * [1, -1, -1]:  # every frustum's apex is its camera centre
+        assert np.linalg.norm(lines - centre, axis=1).min() < 1e-5
+
+
+def test_colmap_model_reads_with_pycolmap_and_reprojects(clip, saved):
+    pycolmap = pytest.importorskip("pycolmap")
+    out, npz = saved
+    rec = pycolmap.Reconstruction(str(out / "colmap" / "sparse" / "0"))
+    assert rec.num_images() == 5 and rec.num_points3D() == len(npz["points"])
+    errors = []
+    for image_id, image in rec.images.items():
+        t = image_id - 1
+        assert (out / "colmap" / "images" / image.name).is_file()
+        fx, fy, cx, cy = image.camera.params
+        k = clip.intrinsics[t]
+        np.testing.assert_allclose([fx, fy, cx, cy], [k[0, 0], k[1, 1], k[0, 2] + 0.5, k[1, 2] + 0.5], rtol=1e-6)
+        np.testing.assert_allclose(image.projection_center(), _gt_poses(clip)[t, :3, 3], atol=1e-6)
+        for point in image.points2D[:50]:
+            xyz = rec.points3D[point.point3D_id].xyz
+            errors.append(np.linalg.norm(image.camera.img_from_cam(image.cam_from_world() * xyz) - point.xy))
+    assert max(errors) < 1e-3  # pixels: the COLMAP pixel convention (+0.5) is applied consistently
+
+
+def test_tum_trajectory(clip, saved):
+    out, _ = saved
+    rows = np.array([[float(v) for v in line.split()] for line in (out / "trajectory_tum.txt").read_text().splitlines()
+                     if not line.startswith("#")])
+    assert rows.shape == (5, 8)
+    np.testing.assert_allclose(rows[:, 0], np.arange(5) / 12.0, atol=1e-6)
+    gt = _gt_poses(clip)
+    np.testing.assert_allclose(rows[:, 1:4], gt[:, :3, 3], atol=1e-6)
+    for row, pose in zip(rows, gt):
+        qx, qy, qz, qw = row[4:]
+        np.testing.assert_allclose(quaternion_matrix([qw, qx, qy, qz])[:3, :3], pose[:3, :3], atol=1e-6)
+
+
+def _decode(path):
+    with av.open(str(path)) as container:
+        return np.stack([f.to_ndarray(format="rgb24") for f in container.decode(video=0)])
+
+
+def test_videos_and_track_projections(clip, saved):
+    out, npz = saved
+    assert _decode(out / "depth.mp4").shape == (5, 30, 40, 3)
+    assert _decode(out / "tracks.mp4").shape == (5, 30, 40, 3)
+    # The overlay draws the 3D tracks projected through the cameras: on the oracle, the true 2D tracks.
+    xy, z = project_tracks(npz["tracks"], npz["video_intrinsics"], npz["cam_to_world"])
+    true_xy = npz["track_uv"] * [40, 30] - 0.5
+    seen = npz["track_visibility"] > 0.5
+    assert seen.mean() > 0.3 and (z[seen] > 0).all()
+    np.testing.assert_allclose(xy[seen], true_xy[seen], atol=1e-4)
+
+
+def test_rerun_recording_verifies(saved):
+    pytest.importorskip("rerun", reason="rerun-sdk is an optional extra (pip install 'd4rt[viewer]')")
+    out, _ = saved
+    rrd = out / "reconstruction.rrd"
+    verify = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)], capture_output=True,
+                            text=True, timeout=120)
+    assert verify.returncode == 0, verify.stderr
+    listing = subprocess.run([sys.executable, "-m", "rerun", "rrd", "print", str(rrd)], capture_output=True,
+                             text=True, timeout=120).stdout
+    for entity in ("world/camera", "world/camera/image", "world/points", "world/tracks", "depth"):
+        assert entity in listing, entity
+
+
+def test_failed_save_leaves_nothing_behind(clip, tmp_path, monkeypatch):
+    rec = clip.reconstruction()
+
+    def broken(*args):
+        raise OSError("disk full")
+
+    monkeypatch.setitem(exports._WRITERS, "tum", broken)
+    target = tmp_path / "deeper" / "out"
+    with pytest.raises(OSError, match="disk full"):
+        rec.save(target, ["ply", "tum"], point_stride=4)
+    assert list(tmp_path.iterdir()) == []  # no output folder, no parents, no staging folder
+
+    target.mkdir(parents=True)
+    (target / "points.ply").write_text("old")
+    (target / "keep.txt").write_text("mine")
+    with pytest.raises(OSError):
+        rec.save(target, ["ply", "tum"], point_stride=4)
+    assert (target / "points.ply").read_text() == "old" and sorted(p.name for p in target.parent.iterdir()) == ["out"]
+    monkeypatch.undo()
+    rec.save(target, ["ply"], point_stride=4)  # replaces its own files, leaves the others
+    assert (target / "points.ply").read_bytes().startswith(b"ply\n") and (target / "keep.txt").read_text() == "mine"
+
+
+def test_format_names_and_missing_rerun(clip, tmp_path, monkeypatch, capsys):
+    with pytest.raises(UserError, match="unknown output format"):
+        exports.parse_formats("ply,obj")
+    assert exports.parse_formats("tum, ply") == ["ply", "tum"]
+    monkeypatch.setattr(exports, "rerun_available", lambda: False)
+    with pytest.raises(UserError, match="needs the rerun-sdk package"):
+        exports.parse_formats("rerun")
+    assert "rerun" not in exports.parse_formats("all")
+    assert capsys.readouterr().err.count("\n") == 1  # a one-line notice
+    (tmp_path / "file").write_text("")
+    with pytest.raises(UserError, match="not a directory"):
+        clip.reconstruction().save(tmp_path / "file", ["tum"])
+
+
+def test_binary_layout_of_the_colmap_files(saved):
+    """The files follow COLMAP's binary layout byte for byte (read here without pycolmap)."""
+    out, npz = saved
+    data = (out / "colmap" / "sparse" / "0" / "points3D.bin").read_bytes()
+    (count,) = struct.unpack_from("<Q", data)
+    point_id, x, y, z, r, g, b, error, track_length, image_id, idx = struct.unpack_from("<QdddBBBdQii", data, 8)
+    assert count == len(npz["points"]) and point_id == 1 and track_length == 1
+    np.testing.assert_allclose([x, y, z], npz["points"][0], rtol=1e-6)
+    assert (r, g, b) == tuple(npz["point_colors"][0]) and image_id == npz["point_frames"][0] + 1
+    assert len(data) == 8 + count * 59
