@@ -19,7 +19,7 @@ from d4rt.data.augment import AugmentConfig, photometric_augment, sample_stride,
 from d4rt.data.sampler import QuerySampler, QuerySamplerConfig
 from d4rt.errors import UserError
 from d4rt.geometry.view import View
-from d4rt.synthetic.clip import Clip, _resize_rgb, load_clip
+from d4rt.synthetic.clip import Clip, load_clip, view_rgb
 from d4rt.synthetic.generate import render_clip
 
 TARGET_KEYS = ("points", "uv", "visibility", "motion", "normals")
@@ -82,7 +82,7 @@ def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampl
     }
     frames = list(view.frames)
     x0, y0, w, h = view.crop
-    rgb = _resize_rgb(clip.rgb[frames, y0:y0 + h, x0:x0 + w], view.size)
+    rgb = view_rgb(clip.rgb, view)
     video = photometric_augment(torch.from_numpy(rgb).float() / 255.0, rng, augment)
     sample = {k: torch.nan_to_num(v, nan=0.0).float() for k, v in targets.items()}
     sample.update(

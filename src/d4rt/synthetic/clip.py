@@ -133,7 +133,7 @@ class Clip:
         view.check_frames(self.num_frames)
         frames = list(view.frames)
         x0, y0, w, h = view.crop
-        rgb = _resize_rgb(self.rgb[frames, y0:y0 + h, x0:x0 + w], view.size)
+        rgb = view_rgb(self.rgb, view)
         intrinsics = view.intrinsics(self.intrinsics)
         c2w, o2w = self.cam_to_world[frames], self.object_to_world[frames]
         resized = view.size != (h, w)
@@ -204,6 +204,12 @@ def _check_shapes(clip: Clip) -> None:
         raise UserError(f"object_to_world has shape {o2w.shape}, expected ({t}, K, 4, 4)")
     if clip.scene is not None and clip.scene.num_bodies != o2w.shape[1]:
         raise UserError(f"scene describes {clip.scene.num_bodies} bodies but object_to_world has {o2w.shape[1]}")
+
+
+def view_rgb(rgb: np.ndarray, view: View) -> np.ndarray:
+    """The frames of ``view``: (T, H, W, 3) uint8 -> (T_view, h, w, 3) uint8, cropped and resized."""
+    x0, y0, w, h = view.crop
+    return _resize_rgb(rgb[list(view.frames), y0:y0 + h, x0:x0 + w], view.size)
 
 
 def _resize_rgb(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:

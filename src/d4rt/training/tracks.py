@@ -34,7 +34,7 @@ from d4rt.errors import UserError
 from d4rt.geometry.camera import project
 from d4rt.geometry.transforms import apply_rotation, apply_transform, invert_rigid
 from d4rt.geometry.view import View
-from d4rt.synthetic.clip import _resize_rgb
+from d4rt.synthetic.clip import view_rgb
 
 TRACK_ARRAYS = {"rgb": np.uint8, "intrinsics": np.float64, "cam_to_world": np.float64, "tracks": np.float64,
                 "visible": bool}
@@ -150,7 +150,7 @@ def track_training_sample(clip: TrackClip, view: View, rng: np.random.Generator,
         "normals": np.zeros((n, 3)),
     }
     x0, y0, w, h = view.crop
-    rgb = _resize_rgb(clip.rgb[frames, y0:y0 + h, x0:x0 + w], view.size)
+    rgb = view_rgb(clip.rgb, view)
     sample = {k: torch.from_numpy(np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)).float()
               for k, v in targets.items()}
     queries = np.concatenate([np.clip(uv_view[point, t_src], 0.0, 1.0), np.stack([t_src, t_tgt, t_cam], 1)], 1)
