@@ -41,7 +41,7 @@ def accuracy_completeness(pred_points, gt_points) -> dict[str, float]:
 
     pred_points: (N, 3), gt_points: (M, 3), both in the same (aligned) frame.
     """
-    from scipy.spatial import cKDTree  # scipy comes with the "eval" extra
+    from scipy.spatial import cKDTree
 
     pred = as_array(pred_points, "pred_points")
     gt = as_array(gt_points, "gt_points")
