@@ -76,9 +76,11 @@ class D4RT(nn.Module):
         video = pad_to_tubelets((video - mean) / std, self.config.tubelet_frames)
         return self.encoder(video, aspect_ratio.to(video.device))
 
-    def decode(self, queries: torch.Tensor, scene_kv: SceneKV, patch_video: torch.Tensor | None) -> dict[str, torch.Tensor]:
-        """Checked ``queries: (B, N, 5)`` + per-layer scene keys/values -> dict of ``(B, N, ...)``."""
-        return self.decoder(self.query_embedding(queries, patch_video), scene_kv)
+    def decode(self, queries: torch.Tensor, scene_kv: SceneKV, patch_video: torch.Tensor | None,
+               share_sources: bool = False) -> dict[str, torch.Tensor]:
+        """Checked ``queries: (B, N, 5)`` + per-layer scene keys/values -> dict of ``(B, N, ...)``.
+        ``share_sources``: embed each run of equal (u, v, t_src) once (see :class:`QueryEmbedding`)."""
+        return self.decoder(self.query_embedding(queries, patch_video, share_sources), scene_kv)
 
     # ------------------------------------------------------------------------------------ training
     def forward(

@@ -1,6 +1,9 @@
 """Query embedding: q = (u, v, t_src, t_tgt, t_cam) -> one token.
 
-token = Fourier(u, v) + E_src[t_src] + E_tgt[t_tgt] + E_cam[t_cam] + RGB-patch(u, v, t_src)   (five terms summed)
+token = [Fourier(u, v) + E_src[t_src] + RGB-patch(u, v, t_src)] + [E_tgt[t_tgt] + E_cam[t_cam]]   (five terms)
+
+The first bracket (the source part) depends on (u, v, t_src) only: the T queries of a full-video track
+share it, so it can be computed once per track and broadcast (``share_sources``).
 
 Conventions: (u, v) in [0, 1] over the image with pixel centres at (i + 0.5) / W; the continuous pixel
 position of (u, v) is x = u * W - 0.5, y = v * H - 0.5 (OpenCV: the centre of the top-left pixel is
@@ -92,12 +95,14 @@ class QueryEmbedding(nn.Module):
         p = config.rgb_patch_size
         self.patch_proj = nn.Linear(3 * p * p, dim) if p > 0 else None
 
-    def forward(self, queries: torch.Tensor, patch_video: torch.Tensor | None) -> torch.Tensor:
+    def source_tokens(self, queries: torch.Tensor, patch_video: torch.Tensor | None) -> torch.Tensor:
+        """The part of the token that depends on (u, v, t_src) only: ``Fourier(u, v) + E_src[t_src] +
+        RGB-patch(u, v, t_src)``. ``queries: (B, N, >= 3)`` -> ``(B, N, decoder_dim)``."""
         uv = queries[..., :2]
-        t_src, t_tgt, t_cam = (queries[..., i].round().long() for i in (2, 3, 4))
+        t_src = queries[..., 2].round().long()
         # Features in float32 (phase precision), then the projection's own dtype (bf16 for a bf16 model).
         token = self.fourier_proj(fourier_features(uv, self.frequencies).to(self.fourier_proj.weight.dtype))
-        token = token + self.time_src(t_src) + self.time_tgt(t_tgt) + self.time_cam(t_cam)
+        token = token + self.time_src(t_src)
         if self.patch_proj is not None:
             if patch_video is None:
                 raise ValueError("rgb_patch_size > 0 needs the video to cut patches from")
@@ -105,3 +110,45 @@ class QueryEmbedding(nn.Module):
                                        self.pixel_mean, self.pixel_std)
             token = token + self.patch_proj(patch.flatten(-3).to(self.patch_proj.weight.dtype))
         return token
+
+    def time_tokens(self, queries: torch.Tensor) -> torch.Tensor:
+        """The part that depends on (t_tgt, t_cam) only: ``E_tgt[t_tgt] + E_cam[t_cam]``;
+        ``queries: (B, N, 5)`` -> ``(B, N, decoder_dim)``."""
+        return self.time_tgt(queries[..., 3].round().long()) + self.time_cam(queries[..., 4].round().long())
+
+    def forward(self, queries: torch.Tensor, patch_video: torch.Tensor | None,
+                share_sources: bool = False) -> torch.Tensor:
+        """Query tokens ``(B, N, decoder_dim)`` = source part + time part.
+
+        ``share_sources``: consecutive queries with the same (u, v, t_src) (a track's queries, which differ
+        only in t_tgt and t_cam) compute the source part (Fourier features, t_src embedding, RGB patch
+        and its projection) once and broadcast it. Runs are found in one pass (no sort), so queries laid
+        out source-major, as every recipe does, share fully; the answers equal the unshared ones.
+        """
+        if share_sources:
+            shared = self._shared_source_tokens(queries, patch_video)
+            if shared is not None:
+                return shared + self.time_tokens(queries)
+        return self.source_tokens(queries, patch_video) + self.time_tokens(queries)
+
+    def _shared_source_tokens(self, queries: torch.Tensor, patch_video: torch.Tensor | None) -> torch.Tensor | None:
+        """Source part computed once per run of equal (u, v, t_src), or None when no run has two queries."""
+        b, n, _ = queries.shape
+        if n < 2:
+            return None
+        flat = queries.reshape(b * n, -1)[:, :3]
+        starts = torch.ones(b * n, dtype=torch.bool, device=queries.device)
+        starts[1:] = (flat[1:] != flat[:-1]).any(-1)
+        starts[::n] = True  # a run never crosses from one clip of the batch into the next
+        runs = int(starts.sum())
+        if runs == b * n:
+            return None
+        first = starts.nonzero().squeeze(-1)  # (runs,) index of each run's first query
+        run_of = torch.cumsum(starts, 0) - 1  # (B * N,) the run each query belongs to
+        if b == 1:
+            tokens = self.source_tokens(flat[first][None], patch_video)[0]
+        else:  # each clip's runs against its own frames
+            clip = first // n
+            tokens = torch.cat([self.source_tokens(flat[first[clip == i]][None], patch_video[i:i + 1]
+                                                   if patch_video is not None else None)[0] for i in range(b)])
+        return tokens[run_of].reshape(b, n, -1)
