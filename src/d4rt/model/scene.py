@@ -7,6 +7,7 @@ values of the scene tokens so each chunk only pays for its own queries.
 
 from __future__ import annotations
 
+import os
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -16,6 +17,7 @@ from d4rt.model.decoder import SceneKV
 from d4rt.model.inputs import check_queries
 
 if TYPE_CHECKING:
+    from d4rt.config import D4RTConfig
     from d4rt.model.d4rt import D4RT
 
 OUTPUT_KEYS = ("points", "uv", "visibility", "motion", "normals", "confidence")
@@ -24,6 +26,49 @@ OUTPUT_KEYS = ("points", "uv", "visibility", "motion", "normals", "confidence")
 def autocast_dtype(device: torch.device) -> torch.dtype | None:
     """The dtype autocast computes in on ``device`` right now, or None when autocast is off there."""
     return torch.get_autocast_dtype(device.type) if torch.is_autocast_enabled(device.type) else None
+
+
+def free_memory_bytes(device: torch.device) -> int | None:
+    """Memory free for new tensors on ``device`` right now: CUDA's free device memory plus what the
+    caching allocator holds unused; on the CPU, the available physical memory (None if unknown)."""
+    if device.type == "cuda":
+        free, _ = torch.cuda.mem_get_info(device)
+        return int(free + torch.cuda.memory_reserved(device) - torch.cuda.memory_allocated(device))
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+def decode_bytes_per_query(config: "D4RTConfig", num_tokens: int, element_bytes: int = 4) -> int:
+    """Working memory one query needs while decoded (an upper bound, without gradients): the residual
+    stream, normalised input, query, attention output and MLP activations of one block, the attention
+    scores over ``num_tokens`` scene tokens (in case no fused kernel applies), the RGB patch sampling
+    (int64 indices and float32 samples) and the 13 float32 outputs."""
+    d, mlp, heads = config.decoder_dim, config.decoder_mlp_dim, config.decoder_heads
+    per_block = element_bytes * (6 * d + 2 * mlp + heads * num_tokens)
+    patch = config.rgb_patch_size ** 2 * (8 * 4 + 4 * 3 * 3)
+    return per_block + patch + 4 * 32
+
+
+def auto_chunk_size(config: "D4RTConfig", num_tokens: int, device: torch.device | str,
+                    memory_fraction: float = 0.25, largest: int = 1 << 16) -> int:
+    """The largest power-of-two chunk whose decoding fits ``memory_fraction`` of the free memory.
+
+    On a GPU bigger chunks keep the device busy, so up to ``largest``; on the CPU the chunk that fits
+    is capped at config ``query_chunk_size`` (past a few thousand queries a CPU gains nothing, and
+    the benchmark measures where it stops gaining: ``d4rt bench --chunks ...``).
+    """
+    device = torch.device(device)
+    free = free_memory_bytes(device)
+    dtype = autocast_dtype(device)
+    per_query = decode_bytes_per_query(config, num_tokens, 2 if dtype in (torch.bfloat16, torch.float16) else 4)
+    cap = largest if device.type == "cuda" else config.query_chunk_size
+    if free is None:
+        return min(cap, config.query_chunk_size)
+    fit = max(1, int(free * memory_fraction) // per_query)
+    chunk = 1 << (fit.bit_length() - 1)  # round down to a power of two
+    return max(1, min(cap, chunk))
 
 
 class EncodedScene:
@@ -70,17 +115,22 @@ class EncodedScene:
         self._kv, self._kv_dtype = None, None
 
     @torch.no_grad()
-    def query(self, queries: Any, chunk_size: int | None = None, cache_kv: bool | None = None) -> dict[str, torch.Tensor]:
+    def query(self, queries: Any, chunk_size: int | str | None = None, cache_kv: bool | None = None,
+              share_sources: bool = True) -> dict[str, torch.Tensor]:
         """Decode independent queries.
 
         Args:
             queries: ``(N, 5)`` float = [u, v, t_src, t_tgt, t_cam]. (u, v) in [0, 1] over the image of
                 frame t_src (pixel centres at (i + 0.5) / W); times are integer frame indices in
                 [0, num_frames). Anything else raises :class:`UserError`.
-            chunk_size: queries decoded at once (default: config ``query_chunk_size``); only memory and
-                speed depend on it, never the answers.
+            chunk_size: queries decoded at once (default: config ``query_chunk_size``; ``"auto"``: the
+                largest that fits the free memory, see :func:`auto_chunk_size`); only memory and speed
+                depend on it, never the answers.
             cache_kv: reuse the scene keys/values across chunks and calls (default: config
                 ``cache_scene_kv``); False recomputes them for every chunk.
+            share_sources: consecutive queries with the same (u, v, t_src), such as the T queries of a
+                full-video track, compute the source part of their embedding (Fourier features, t_src
+                embedding, RGB patch) once; the answers are the same either way (False: for benchmarks).
 
         Returns:
             dict of tensors on the model's device (OpenCV camera: x right, y down, z forward):
@@ -99,14 +149,17 @@ class EncodedScene:
         device = self.tokens.device
         queries = queries.to(device=device, dtype=torch.float32)
         chunk = chunk_size if chunk_size is not None else self.model.config.query_chunk_size
-        if not isinstance(chunk, int) or chunk < 1:
-            raise UserError(f"chunk_size must be a positive integer, got {chunk!r}")
+        if chunk == "auto":
+            chunk = auto_chunk_size(self.model.config, self.tokens.shape[1], device)
+        if not isinstance(chunk, int) or isinstance(chunk, bool) or chunk < 1:
+            raise UserError(f"chunk_size must be a positive integer or 'auto', got {chunk!r}")
         cache = self.model.config.cache_scene_kv if cache_kv is None else bool(cache_kv)
 
         outputs: dict[str, list[torch.Tensor]] = {key: [] for key in OUTPUT_KEYS}
         # No queries still run one (empty) chunk, so the empty answers have the usual shapes and dtypes.
         for start in range(0, max(queries.shape[0], 1), chunk):
-            answer = self.model.decode(queries[None, start:start + chunk], self.scene_kv(cache), self.patch_video)
+            answer = self.model.decode(queries[None, start:start + chunk], self.scene_kv(cache), self.patch_video,
+                                       share_sources)
             for key in OUTPUT_KEYS:
                 outputs[key].append(answer[key][0])
         return {key: torch.cat(parts) for key, parts in outputs.items()}
