@@ -23,7 +23,7 @@ from tqdm import tqdm
 from d4rt.errors import UserError
 from d4rt.geometry.transforms import invert_rigid
 from d4rt.geometry.umeyama import Similarity, umeyama
-from d4rt.reconstruction.cameras import intrinsics_from_points, relative_pose
+from d4rt.reconstruction.cameras import intrinsics_from_points, relative_poses
 from d4rt.reconstruction.dense import occupancy_tracking
 from d4rt.reconstruction.results import Cameras, DenseTracks, Depth, PointCloud, Tracks
 from d4rt.reconstruction.sources import as_source
@@ -159,14 +159,23 @@ class Reconstruction:
         for win in range(len(self.windows)):
             frames = np.array(self._owned(win))
             first = self.windows[win][0]
-            here = self._ask(win, _queries(uv, frames, frames, frames))
-            there = self._ask(win, _queries(uv, frames, frames, np.full_like(frames, first)))
+            # One call, each point's two queries side by side: they differ only in t_cam, so the model
+            # embeds their shared (u, v, t_src) once (EncodedScene.query, share_sources).
+            both = np.stack([_queries(uv, frames, frames, frames),
+                             _queries(uv, frames, frames, np.full_like(frames, first))], 1).reshape(-1, 5)
+            answers = self._ask(win, both)
+            here = {k: v[0::2] for k, v in answers.items()}
+            there = {k: v[1::2] for k, v in answers.items()}
             sim = self.window_to_world[win].matrix().double().numpy()
             for j, f in enumerate(frames):
                 sl = slice(j * n, (j + 1) * n)
                 per_frame[f] = {"points": here["points"][sl], "confidence": here["confidence"][sl]}
-                weights = _finite_weights(here["confidence"][sl] * there["confidence"][sl])
-                c2w[f] = _similarity_times_pose(sim, relative_pose(here["points"][sl], there["points"][sl], weights))
+            # Every frame's rigid fit at once (one batched SVD, no loop over frames).
+            weights = _finite_weights(here["confidence"] * there["confidence"]).reshape(len(frames), n)
+            poses = relative_poses(here["points"].reshape(len(frames), n, 3), there["points"].reshape(len(frames), n, 3),
+                                   weights)
+            for j, f in enumerate(frames):
+                c2w[f] = _similarity_times_pose(sim, poses[j])
         return per_frame, c2w
 
     def cameras(self, intrinsics=None, method: str = "median", reference_frame: int = 0) -> Cameras:
