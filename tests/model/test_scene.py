@@ -207,3 +207,36 @@ def test_original_frames_are_stored_contiguous(make_model, random_video, random_
     for key, value in scene.query(queries, chunk_size=3).items():
         # Not bit-identical: the resize kernel differs with the memory layout.
         torch.testing.assert_close(value, expected[key], atol=1e-5, rtol=0)
+
+
+def test_cached_and_recomputed_keys_values_answer_the_same_at_benchmark_chunks(make_model, random_video,
+                                                                             random_queries):
+    """As ``d4rt bench`` compares them: chunks of 256, random and track queries, float32, to 1e-5."""
+    from d4rt.benchmark.decoder import random_sources, track_queries
+
+    model = make_model()
+    scene = model.encode(random_video(8, 48, 48))
+    tracks = track_queries(random_sources(40, 8, torch.Generator().manual_seed(5)), 8)
+    queries = torch.cat([random_queries(300, 8), tracks])  # 620 queries: 3 chunks of 256
+    projections = [MethodCounter(block.attn, "project_context") for block in model.decoder.blocks]
+    cached = scene.query(queries, chunk_size=256, cache_kv=True)
+    assert [p.calls for p in projections] == [1] * len(projections)
+    uncached = scene.query(queries, chunk_size=256, cache_kv=False)
+    assert [p.calls for p in projections] == [1 + 3] * len(projections)
+    for key in OUTPUT_KEYS:
+        assert cached[key].dtype == torch.float32
+        torch.testing.assert_close(cached[key], uncached[key], atol=1e-5, rtol=0)
+
+
+def test_recipes_never_recompute_the_scene_keys_values(make_model, random_video):
+    """Depth, cameras and tracks of one window: each decoder layer projects the scene once in all."""
+    model = make_model()
+    video = random_video(6, 24, 32)
+    encoder_calls = CallCounter(model.encoder)
+    projections = [MethodCounter(block.attn, "project_context") for block in model.decoder.blocks]
+    rec = model.reconstruct(video, chunk_size=100, grid=6)  # many small chunks
+    rec.depth()
+    rec.cameras()
+    rec.tracks(np.array([[0, 3.0, 4.0], [5, 10.0, 20.0]]))
+    assert encoder_calls.calls == 1
+    assert [p.calls for p in projections] == [1] * len(projections)

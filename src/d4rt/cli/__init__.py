@@ -16,7 +16,7 @@ import traceback
 from d4rt.errors import UserError
 
 # One module per subcommand, in the order `d4rt --help` lists them.
-COMMANDS = ["reconstruct", "demo", "eval", "generate", "info", "train"]
+COMMANDS = ["reconstruct", "demo", "eval", "generate", "info", "train", "bench"]
 
 
 def build_parser() -> argparse.ArgumentParser:

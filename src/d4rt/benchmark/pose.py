@@ -1,0 +1,43 @@
+"""Camera-pose FPS: intrinsics and camera-to-world poses of every frame, from the video, per second.
+
+The recipe is the one users call, ``model.reconstruct(video).cameras()`` (paper Sec. 2.1): encode the
+clip, query a grid of every frame in its own camera and in the reference camera, fit intrinsics by
+the pinhole median and poses by Umeyama. FPS = frames / wall time, encoder included. Optionally the
+same clip goes through COLMAP's incremental SfM (``d4rt.evaluation.colmap``) for comparison.
+"""
+
+from __future__ import annotations
+
+import time
+
+import torch
+
+from d4rt.benchmark.options import BenchOptions
+from d4rt.benchmark.timing import best_time
+
+
+def bench_pose(model, video: torch.Tensor, options: BenchOptions) -> dict:
+    """Best wall time of the full camera recipe on ``video (T, H, W, 3)``; pose_fps = T / that time."""
+    device = torch.device(options.device)
+    frames = video.shape[0]
+
+    def run():
+        return model.reconstruct(video, progress=False).cameras()
+
+    with options.autocast():
+        seconds = best_time(run, device, options.repeats)
+    return {"pose_s": seconds, "pose_fps": frames / seconds, "pose_frames": frames}
+
+
+def bench_colmap(video: torch.Tensor, pose_s: float) -> dict:
+    """COLMAP (pycolmap: SIFT, exhaustive matching, incremental mapping, on the CPU) on the same clip,
+    timed once from frames in memory to poses; speed-up = COLMAP time / D4RT pose time."""
+    from d4rt.evaluation.colmap import ColmapPredictor  # raises a UserError naming the extra if missing
+
+    predictor = ColmapPredictor()
+    start = time.perf_counter()
+    _, registered, notes = predictor.reconstruct(video.numpy())
+    seconds = time.perf_counter() - start
+    return {"colmap_s": seconds, "colmap_fps": video.shape[0] / seconds,
+            "colmap_registered_frames": int(registered.sum()), "colmap_notes": notes,
+            "pose_speedup_vs_colmap": seconds / pose_s}
