@@ -7,7 +7,7 @@ import numpy as np
 import torch
 
 from d4rt.errors import UserError
-from d4rt.geometry.umeyama import umeyama
+from d4rt.geometry.umeyama import batched_umeyama, umeyama
 
 
 def intrinsics_from_points(points: np.ndarray, uv: np.ndarray, confidence: np.ndarray, height: int, width: int,
@@ -72,25 +72,6 @@ def relative_poses(points_here: np.ndarray, points_there: np.ndarray, weights: n
     :func:`relative_pose` frame by frame; a frame with fewer than 3 usable points, or collinear ones,
     raises :class:`UserError` as that does.
     """
-    x, y, w = (torch.from_numpy(np.asarray(a, dtype=np.float64)) for a in (points_here, points_there, weights))
-    ok = torch.isfinite(x).all(-1) & torch.isfinite(y).all(-1) & torch.isfinite(w) & (w > 0)
-    w = torch.where(ok, w, torch.zeros_like(w))
-    x, y = torch.where(ok[..., None], x, torch.zeros_like(x)), torch.where(ok[..., None], y, torch.zeros_like(y))
-    total = w.sum(-1)
-    if bool(((ok.sum(-1) < 3) | (total <= 0)).any()):
-        frame = int(((ok.sum(-1) < 3) | (total <= 0)).nonzero()[0])
-        raise UserError(f"umeyama needs at least 3 weighted, finite correspondences, got {int(ok[frame].sum())}")
-    w = w / total[:, None]
-    mx, my = (w[..., None] * x).sum(1), (w[..., None] * y).sum(1)  # (F, 3)
-    xc, yc = x - mx[:, None], y - my[:, None]
-    cov = (yc * w[..., None]).transpose(1, 2) @ xc  # (F, 3, 3): sum_i w_i y_i x_i^T
-    u, sing, vt = torch.linalg.svd(cov)
-    if bool((sing[:, 1] <= 1e-12 * sing[:, 0].clamp(min=1e-300)).any()):
-        raise UserError("umeyama: the points are collinear (or coincide); a rotation is not determined")
-    d = torch.ones(len(cov), 3, dtype=torch.float64)
-    d[:, 2] = torch.where(torch.linalg.det(u) * torch.linalg.det(vt) < 0, -1.0, 1.0)
-    rot = u @ torch.diag_embed(d) @ vt
-    out = torch.eye(4, dtype=torch.float64).repeat(len(cov), 1, 1)
-    out[:, :3, :3] = rot
-    out[:, :3, 3] = my - (rot @ mx[..., None])[..., 0]
-    return out.numpy()
+    sim = batched_umeyama(*(torch.from_numpy(np.asarray(a, dtype=np.float64))
+                            for a in (points_here, points_there, weights)))
+    return sim.matrix().numpy()
