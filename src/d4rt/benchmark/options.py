@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import torch
 
+from d4rt import devices
 from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
 
@@ -110,20 +111,10 @@ class BenchOptions:
 
 
 def resolve_device(name: str) -> torch.device:
-    """"auto" (CUDA if available, else CPU), "cpu", "cuda" or "cuda:N"; a device that is not there raises."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(name)
-    except RuntimeError:
-        raise UserError(f"unknown device {name!r}; use auto, cpu, cuda or cuda:N") from None
-    if device.type == "cuda":
-        if not torch.cuda.is_available():
-            raise UserError(f"device {name!r} asked for but CUDA is not available here")
-        if device.index is not None and device.index >= torch.cuda.device_count():
-            raise UserError(f"device {name!r} asked for but only {torch.cuda.device_count()} CUDA device(s) exist")
-    elif device.type != "cpu":
-        raise UserError(f"device {name!r} is not supported by the benchmark; use cpu or cuda")
+    """:func:`d4rt.devices.resolve_device`, limited to the devices the benchmark times (CPU and CUDA)."""
+    device = devices.resolve_device(name, "--device")
+    if device.type not in ("cpu", "cuda"):
+        raise UserError(f"--device {name!r} is not supported by the benchmark; use cpu or cuda")
     return device
 
 

@@ -80,20 +80,6 @@ def parse_resolution(text: str):
     raise UserError(f"--resolution must be 'original', 'encoder' or WIDTHxHEIGHT (e.g. 640x480), got {text!r}")
 
 
-def pick_device(name: str):
-    import torch
-
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        device = torch.device(name)
-    except RuntimeError:
-        raise UserError(f"--device {name!r} is not a torch device (cpu, cuda, cuda:1, mps, ...)") from None
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise UserError(f"--device {name}: CUDA is not available on this machine")
-    return device
-
-
 def has_bundled_model() -> bool:
     from d4rt.model.weights import bundled_model_dir
 
@@ -128,6 +114,7 @@ class EncodeProgress:
 def run(args) -> int:
     import torch
 
+    from d4rt.devices import resolve_device
     from d4rt.io.exports import check_output_dir, parse_formats
     from d4rt.io.frames import FrameRange, load_frames
     from d4rt.reconstruction import ModelSource, Reconstruction
@@ -138,7 +125,7 @@ def run(args) -> int:
     formats = parse_formats(args.outputs)
     out_dir = check_output_dir(args.out)
     selection = FrameRange(args.start, args.end, args.stride, args.max_frames)
-    device = pick_device(args.device)
+    device = resolve_device(args.device, "--device")
 
     frames = load_frames(args.input, selection, progress=True)
     model = load_model(args.checkpoint, device)
