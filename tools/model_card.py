@@ -71,8 +71,9 @@ def training_section(training: dict) -> str:
         ["steps", f"{training['steps']:,} (batch {training['clips_per_step']} clip)"],
         ["training time", f"{training['training_seconds'] / 60:.0f} min of optimiser steps "
                           f"({training['steps'] / training['training_seconds']:.2f} steps/s); "
-                          f"{training['wall_seconds'] / 60:.0f} min wall time with validation and checkpoints"
-                          + (" (since the last resume)" if training["resumed"] else "")],
+                          + ("in several runs, each resumed from the previous one's last checkpoint"
+                             if training["resumed"] else
+                             f"{training['wall_seconds'] / 60:.0f} min wall time with validation and checkpoints")],
         ["hardware", f"CPU only: {hw['cpu']}, {hw['logical_cpus']} logical cores (shared), "
                      f"torch {hw['torch']}, {training['config']['run']['precision']}"],
     ]
@@ -158,10 +159,10 @@ def sections(sources: dict) -> dict[str, str]:
 
 def render(card: str, generated: dict[str, str]) -> str:
     for name, text in generated.items():
-        pattern = re.compile(rf"(<!-- BEGIN {name} -->\n).*?(\n<!-- END {name} -->)", re.DOTALL)
+        pattern = re.compile(rf"(<!-- BEGIN {name} -->\n)(?:.*?\n)?(<!-- END {name} -->)", re.DOTALL)
         if not pattern.search(card):
             raise SystemExit(f"MODEL_CARD.md has no <!-- BEGIN {name} --> ... <!-- END {name} --> section")
-        card = pattern.sub(lambda m, text=text: m.group(1) + text + m.group(2), card)
+        card = pattern.sub(lambda m, text=text: m.group(1) + text + "\n" + m.group(2), card)
     return card
 
 

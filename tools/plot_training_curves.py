@@ -51,7 +51,7 @@ def plot(records: list[dict], out: Path, smooth: int, title: str) -> None:
         steps, values = series(records, f"loss/{term}")
         line, = ax.plot(steps, running_median(values, smooth), label=term, lw=1.6)
         ax.plot(steps, values, color=line.get_color(), alpha=0.15, lw=0.6)
-    ax.set(title=f"training: loss terms (unweighted; bold: running median of {smooth} windows)", yscale="log", xlabel="step")
+    ax.set(title=f"training: loss terms, unweighted\n(bold: running median of {smooth} windows)", yscale="log", xlabel="step")
     ax.legend(fontsize=8)
     ax = axes[1]
     steps, values = series(records, "loss/total")
