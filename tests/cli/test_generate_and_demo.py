@@ -1,5 +1,6 @@
 """`d4rt generate` and `d4rt demo` end to end, through the real console entry point."""
 
+import json
 import os
 import re
 import subprocess
@@ -7,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 import d4rt
@@ -54,21 +56,47 @@ def test_generate_rejects_bad_arguments_in_one_line(tmp_path):
     assert r.returncode == 2 and "not a directory" in r.stderr
 
 
+OUTPUTS = ("reconstruction.npz", "depth", "depth.mp4", "points.ply", "scene.glb", "colmap", "trajectory_tum.txt",
+           "tracks.mp4", "viewer.html")
+CARD_FOCAL = Path(__file__).resolve().parents[2] / "docs" / "model-card" / "focal.json"
+
+
+def printed_errors(stdout: str) -> dict[str, float]:
+    return {name: float(re.search(rf"{name} ([0-9.e+-]+)", stdout).group(1))
+            for name in ("AbsRel", "ATE", "focal length error", "APD3D", "L1")}
+
+
 def test_demo_runs_with_no_arguments(tmp_path):
+    """With the bundled model (MODEL_CARD.md) the demo reconstructs both samples, writes every output,
+    prints the synthetic clip's errors, and the real frames' focal length: the model card's figure."""
     r = run_cli("demo", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    out = tmp_path / "d4rt-demo" / "synthetic"
-    for name in ("reconstruction.npz", "depth", "depth.mp4", "points.ply", "scene.glb", "colmap", "trajectory_tum.txt",
-                 "tracks.mp4", "viewer.html"):
-        assert (out / name).exists(), name
-    # No trained model yet: the demo says so, answers with the oracle, and its errors (computed from the
-    # written files against the clip's ground truth) are those of an exact pipeline.
-    assert "no trained model ships" in r.stdout and "oracle" in r.stdout
-    errors = {name: float(re.search(rf"{name} ([0-9.e+-]+)", r.stdout).group(1))
-              for name in ("AbsRel", "ATE", "focal length error", "L1")}
-    assert all(value < 1e-5 for value in errors.values()), errors
-    assert "delta<1.25 100.0%" in r.stdout and "APD3D 100.0%" in r.stdout
-    assert "real footage" in r.stdout and "skipped" in r.stdout and not (tmp_path / "d4rt-demo" / "tum").exists()
+    assert "bundled model d4rt-tiny" in r.stdout and "no trained model" not in r.stdout
+    for sample in ("synthetic", "tum"):
+        for name in OUTPUTS:
+            assert (tmp_path / "d4rt-demo" / sample / name).exists(), (sample, name)
+    assert all(np.isfinite(value) for value in printed_errors(r.stdout).values()), r.stdout
+    with np.load(tmp_path / "d4rt-demo" / "tum" / "reconstruction.npz") as npz:
+        assert npz["video_intrinsics"].shape == (17, 3, 3)
+        fx = float(np.median(npz["video_intrinsics"][:, 0, 0]))
+    assert f"real frames: focal length {fx:.1f} px vs the published fx = 535.4 px" in r.stdout
+    card = json.loads(CARD_FOCAL.read_text())["tum-fr3-long-office-household"]["estimated_fx"]
+    assert fx == pytest.approx(card, abs=1e-3)
+
+
+def test_demo_without_a_model_answers_with_the_oracle(tmp_path, capsys):
+    """The demo's fallback when no model is installed: the exact oracle answers the synthetic clip, so the
+    printed errors, computed from the written files against its ground truth, are those of an exact
+    pipeline; the real frames are skipped."""
+    demo.run_synthetic(None, tmp_path / "synthetic")
+    demo.run_real(None, tmp_path / "tum")
+    stdout = capsys.readouterr().out
+    assert "real footage" in stdout and "skipped" in stdout and not (tmp_path / "tum").exists()
+    for name in OUTPUTS:
+        assert (tmp_path / "synthetic" / name).exists(), name
+    errors = printed_errors(stdout)
+    assert all(errors[name] < 1e-5 for name in ("AbsRel", "ATE", "focal length error", "L1")), errors
+    assert "delta<1.25 100.0%" in stdout and "APD3D 100.0%" in stdout
 
 
 def test_demo_real_frames_with_a_model(tmp_path, capsys):

@@ -2,7 +2,7 @@
 bundled real TUM RGB-D frames give every output, and each output parses; every bad input gives one clear
 line, exit status 2, no traceback, and no output folder.
 
-No trained model ships yet, so the model is a random-weight tiny one saved with save_pretrained: its
+The model is a random-weight tiny one saved with save_pretrained (tests/ship covers the bundled one): its
 outputs are meaningless but must exist and parse (their geometry is checked on the oracle in tests/io).
 """
 
@@ -186,10 +186,12 @@ def test_bad_inputs_one_line_and_nothing_written(tmp_path, clip, checkpoint, cli
     assert "Traceback" not in r.stderr and not (tmp_path / "results").exists()
 
 
-def test_checkpoint_errors(tmp_path, clip, checkpoint, cli):
+def test_checkpoint_errors(tmp_path, clip, checkpoint, cli, monkeypatch):
     video = tmp_path / "v.npy"
     np.save(video, clip.rgb)
-    r = cli("reconstruct", video, "-o", tmp_path / "out")  # no --checkpoint: no bundled model yet
+    # No --checkpoint in an installation without the bundled model (tests/ship checks the one that ships).
+    monkeypatch.setattr("d4rt.model.weights.bundled_model_dir", lambda: tmp_path / "no-bundled-model")
+    r = cli("reconstruct", video, "-o", tmp_path / "out")
     assert r.returncode == 2 and "pass --checkpoint DIR" in r.stderr and "d4rt demo" in r.stderr
     mismatched = tmp_path / "mismatched"
     mismatched.mkdir()

@@ -75,12 +75,14 @@ def test_load_checked_state_dict_refuses_partial_dicts(make_model):
         model.load_checked_state_dict(state)
 
 
-def test_missing_files_and_bundled_model(tmp_path):
+def test_missing_files_and_bundled_model(tmp_path, monkeypatch):
     with pytest.raises(UserError, match="checkpoint directory not found"):
         D4RT.from_pretrained(tmp_path / "nowhere")
     (tmp_path / "empty").mkdir()
     with pytest.raises(UserError, match="has no config.json"):
         D4RT.from_pretrained(tmp_path / "empty")
+    # An installation without the bundled model (tests/ship checks the one that ships).
+    monkeypatch.setattr("d4rt.model.d4rt.bundled_model_dir", lambda: tmp_path / "empty")
     with pytest.raises(UserError, match="no bundled model ships"):
         D4RT.from_pretrained()
 

@@ -1,0 +1,76 @@
+"""Focal lengths estimated by a D4RT model, measured where ``d4rt eval`` does not score them.
+
+    python tools/measure_focal.py --checkpoint src/d4rt/assets/d4rt-tiny --out docs/model-card/focal.json
+
+Two measurements, both with the paper's pinhole-median recipe (``model.reconstruct(video).cameras()``,
+intrinsics in pixels of the input frames):
+
+- ``synthetic-dynamic-v1``: every clip of the benchmark (or the first ``--limit``); per clip the median
+  over its frames of the relative focal error |fx / fx_true - 1| (the engine's cameras have square
+  pixels, fx = fy; zooming clips change fx per frame, and each frame is compared with its own), then the
+  median and mean over clips.
+- the 17 real TUM RGB-D fr3 frames bundled for ``d4rt demo``: the median fx over the frames against the
+  published fx = 535.4 px (the value ``d4rt demo`` prints).
+
+Writes JSON (every number the model card quotes about focal lengths) and prints a summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from d4rt.cli.demo import TUM_FOLDER, TUM_FX, tum_frames_dir
+from d4rt.evaluation.synthetic_benchmark import NAME as BENCHMARK
+from d4rt.evaluation.synthetic_benchmark import clip_specs
+from d4rt.io.frames import load_frames
+from d4rt.model import D4RT
+
+
+def synthetic_focal_errors(model: D4RT, limit: int | None) -> dict:
+    """Per-clip median relative fx error on synthetic-dynamic-v1, and its median / mean over clips."""
+    clips = []
+    for spec in tqdm(clip_specs()[:limit], desc=f"focal {BENCHMARK}", unit="clip"):
+        sequence = spec.render()
+        estimated = model.reconstruct(sequence.rgb).cameras().intrinsics[:, 0, 0]
+        true = sequence.intrinsics[:, 0, 0]
+        errors = np.abs(estimated / true - 1.0)
+        clips.append({"name": spec.name, "size": [spec.height, spec.width],
+                      "true_fx_median": float(np.median(true)), "estimated_fx_median": float(np.median(estimated)),
+                      "focal_error": float(np.median(errors))})
+    errors = [c["focal_error"] for c in clips]
+    return {"clips": clips, "median_focal_error": float(np.median(errors)), "mean_focal_error": float(np.mean(errors))}
+
+
+def tum_focal(model: D4RT) -> dict:
+    """The median estimated fx over the bundled TUM frames, against the published calibration."""
+    frames = load_frames(tum_frames_dir())
+    fx = float(np.median(model.reconstruct(frames.rgb).cameras().intrinsics[:, 0, 0]))
+    return {"frames": len(frames.rgb), "size": list(frames.rgb.shape[1:3]), "estimated_fx": fx,
+            "published_fx": TUM_FX, "relative_error": fx / TUM_FX - 1.0}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checkpoint", default=None, help="model directory (default: the bundled model)")
+    parser.add_argument("--out", type=Path, required=True, help="JSON file to write")
+    parser.add_argument("--limit", type=int, default=None, help="only the first N benchmark clips")
+    args = parser.parse_args()
+
+    model = D4RT.from_pretrained(args.checkpoint)
+    result = {"checkpoint": args.checkpoint or "bundled", BENCHMARK: synthetic_focal_errors(model, args.limit),
+              TUM_FOLDER: tum_focal(model)}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1) + "\n")
+    synthetic, tum = result[BENCHMARK], result[TUM_FOLDER]
+    print(f"{BENCHMARK}: median focal error {synthetic['median_focal_error']:.1%} over {len(synthetic['clips'])} clips")
+    print(f"{TUM_FOLDER}: fx {tum['estimated_fx']:.1f} px vs published {TUM_FX} ({tum['relative_error']:+.1%})")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

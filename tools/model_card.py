@@ -1,0 +1,185 @@
+"""The measured sections of MODEL_CARD.md, generated from the files the measuring commands wrote.
+
+    python tools/model_card.py            # rewrite the generated sections of MODEL_CARD.md
+    python tools/model_card.py --check    # exit 1 if MODEL_CARD.md differs from what the files give
+
+Sources (docs/model-card/, each written by the command named in MODEL_CARD.md):
+
+- ``training.json`` (tools/training_summary.py): steps, clips, times, hardware;
+- ``eval-synthetic-dynamic-v1.json`` (``d4rt eval --benchmark synthetic-dynamic-v1``): the model beside
+  the oracle, constant-depth and pycolmap baselines, aggregate and per clip;
+- ``focal.json`` (tools/measure_focal.py): focal-length errors, which ``d4rt eval`` does not score.
+
+Each generated section sits between ``<!-- BEGIN name -->`` and ``<!-- END name -->`` markers; the text
+around them is written by hand and never holds a measured number.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+CARD = ROOT / "MODEL_CARD.md"
+SOURCES = ROOT / "docs" / "model-card"
+BENCHMARK = "synthetic-dynamic-v1"
+TUM = "tum-fr3-long-office-household"
+
+# The targets of issue 8, as (what, threshold).
+TARGET_ABS_REL = 0.10
+TARGET_ATE_RATIO = 0.5
+TARGET_APD3D = 0.5
+TARGET_OA = 0.85
+TARGET_FOCAL = 0.05
+
+RESULT_COLUMNS = (  # (column of d4rt eval, header)
+    ("abs_rel[scale&shift]", "depth AbsRel (s&s) ↓"), ("delta<1.25[scale&shift]", "δ<1.25 (s&s) ↑"),
+    ("abs_rel[scale]", "depth AbsRel (scale) ↓"), ("ate", "ATE ↓"), ("rpe_trans", "RPE trans ↓"),
+    ("rpe_rot", "RPE rot (°) ↓"), ("auc@30", "AUC@30 ↑"), ("registered", "frames posed ↑"),
+    ("apd3d", "APD3D ↑"), ("aj", "3D-AJ ↑"), ("oa", "OA ↑"), ("world_apd3d", "world APD3D ↑"),
+    ("pc_l1", "point-cloud L1 ↓"),
+)
+METHOD_NAMES = {"d4rt": "**d4rt-tiny (this model)**", "oracle": "oracle (exact ground truth)",
+                "constant-depth": "constant depth", "colmap": "pycolmap SfM (poses only)"}
+
+
+def load_sources(directory: Path = SOURCES) -> dict:
+    return {name: json.loads((directory / f"{name}.json").read_text())
+            for name in ("training", f"eval-{BENCHMARK}", "focal")}
+
+
+def fmt(value: float | None, digits: int = 3) -> str:
+    return "-" if value is None else f"{value:.{digits}g}"
+
+
+def table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
+
+
+def training_section(training: dict) -> str:
+    hw = training["hardware"]
+    rows = [
+        ["model", f"`{training['preset']}` preset, {training['parameters'] / 1e6:.2f}M parameters, "
+                  f"max_frames {training['max_frames']}"],
+        ["data", f"{training['clips_seen']:,} synthetic clips rendered on the fly (each seen once), "
+                 f"{training['frames_per_clip']} frames at {training['input_size'][0]}x{training['input_size'][1]}, "
+                 f"{training['queries_per_clip']:,} queries per clip"],
+        ["steps", f"{training['steps']:,} (batch {training['clips_per_step']} clip)"],
+        ["training time", f"{training['training_seconds'] / 60:.0f} min of optimiser steps "
+                          f"({training['steps'] / training['training_seconds']:.2f} steps/s); "
+                          + ("in several runs, each resumed from the previous one's last checkpoint"
+                             if training["resumed"] else
+                             f"{training['wall_seconds'] / 60:.0f} min wall time with validation and checkpoints")],
+        ["hardware", f"CPU only: {hw['cpu']}, {hw['logical_cpus']} logical cores (shared), "
+                     f"torch {hw['torch']}, {training['config']['run']['precision']}"],
+    ]
+    return table(["", ""], rows)
+
+
+def results_section(evaluation: dict) -> str:
+    """One row per metric, one column per method (the benchmark's aggregates)."""
+    methods = evaluation["methods"]
+    rows = [[header, *(fmt(m["aggregate"][column]) for m in methods)] for column, header in RESULT_COLUMNS]
+    return table(["metric", *(METHOD_NAMES.get(m["name"], m["name"]) for m in methods)], rows)
+
+
+def pose_comparison(evaluation: dict) -> dict:
+    """d4rt's and pycolmap's ATE on the clips pycolmap could pose (>= 3 registered frames), and which
+    clips each failed on (no ATE)."""
+    methods = {m["name"]: {s["name"]: s for s in m["sequences"]} for m in evaluation["methods"]}
+    d4rt, colmap = methods["d4rt"], methods["colmap"]
+    common = [name for name in d4rt if colmap[name]["metrics"]["ate"] is not None
+              and d4rt[name]["metrics"]["ate"] is not None]
+
+    def mean(rows: dict, names: list[str]) -> float:
+        return sum(rows[n]["metrics"]["ate"] for n in names) / len(names)
+
+    return {"clips": len(d4rt), "common": common,
+            "d4rt_failed": [n for n in d4rt if d4rt[n]["metrics"]["ate"] is None],
+            "colmap_failed": [n for n in colmap if colmap[n]["metrics"]["ate"] is None],
+            "d4rt_ate": mean(d4rt, common), "colmap_ate": mean(colmap, common),
+            "d4rt_better": sum(d4rt[n]["metrics"]["ate"] < colmap[n]["metrics"]["ate"] for n in common),
+            "colmap_registered": sum(colmap[n]["metrics"]["registered"] for n in common) / len(common)}
+
+
+def pose_section(evaluation: dict) -> str:
+    p = pose_comparison(evaluation)
+    rows = [["clips with an ATE", f"{p['clips'] - len(p['d4rt_failed'])} of {p['clips']}",
+             f"{p['clips'] - len(p['colmap_failed'])} of {p['clips']}"],
+            [f"mean ATE on the {len(p['common'])} clips both posed", fmt(p["d4rt_ate"]), fmt(p["colmap_ate"])],
+            ["frames posed on those clips", "100%", f"{p['colmap_registered']:.0%}"],
+            ["clips where d4rt's ATE is lower", f"{p['d4rt_better']} of {len(p['common'])}", ""]]
+    return table(["", "d4rt-tiny", "pycolmap"], rows)
+
+
+def focal_section(focal: dict) -> str:
+    synthetic, tum = focal[BENCHMARK], focal[TUM]
+    rows = [[f"{BENCHMARK}, {len(synthetic['clips'])} clips", "per clip: median over frames of \\|fx / fx_true - 1\\|",
+             f"median {synthetic['median_focal_error']:.1%}, mean {synthetic['mean_focal_error']:.1%}"],
+            [f"{tum['frames']} real TUM RGB-D fr3 frames ({tum['size'][1]}x{tum['size'][0]})",
+             f"median fx over the frames vs the published fx = {tum['published_fx']} px",
+             f"{tum['estimated_fx']:.1f} px ({tum['relative_error']:+.1%})"]]
+    return table(["data", "measure", "d4rt-tiny"], rows)
+
+
+def verdict(met: bool) -> str:
+    return "**met**" if met else "missed"
+
+
+def targets_section(evaluation: dict, focal: dict) -> str:
+    agg = next(m for m in evaluation["methods"] if m["name"] == "d4rt")["aggregate"]
+    p = pose_comparison(evaluation)
+    ratio = p["d4rt_ate"] / p["colmap_ate"]
+    median_focal = focal[BENCHMARK]["median_focal_error"]
+    rows = [
+        ["depth AbsRel (scale & shift)", f"≤ {TARGET_ABS_REL}", fmt(agg["abs_rel[scale&shift]"]),
+         verdict(agg["abs_rel[scale&shift]"] <= TARGET_ABS_REL)],
+        ["camera ATE vs pycolmap on the same clips, no clip failing", f"≤ {TARGET_ATE_RATIO} x pycolmap",
+         f"{ratio:.2f} x pycolmap ({fmt(p['d4rt_ate'])} vs {fmt(p['colmap_ate'])}); "
+         f"{len(p['d4rt_failed'])} clip(s) failed", verdict(ratio <= TARGET_ATE_RATIO and not p["d4rt_failed"])],
+        ["APD3D (camera-frame tracks)", f"≥ {TARGET_APD3D}", fmt(agg["apd3d"]),
+         verdict(agg["apd3d"] >= TARGET_APD3D)],
+        ["OA (camera-frame tracks)", f"≥ {TARGET_OA}", fmt(agg["oa"]), verdict(agg["oa"] >= TARGET_OA)],
+        ["focal error, median over clips", f"≤ {TARGET_FOCAL:.0%}", f"{median_focal:.1%}",
+         verdict(median_focal <= TARGET_FOCAL)],
+    ]
+    return table(["target (issue 8)", "goal", "measured", ""], rows)
+
+
+def sections(sources: dict) -> dict[str, str]:
+    evaluation, focal = sources[f"eval-{BENCHMARK}"], sources["focal"]
+    return {"training": training_section(sources["training"]), "results": results_section(evaluation),
+            "pose": pose_section(evaluation), "focal": focal_section(focal),
+            "targets": targets_section(evaluation, focal)}
+
+
+def render(card: str, generated: dict[str, str]) -> str:
+    for name, text in generated.items():
+        pattern = re.compile(rf"(<!-- BEGIN {name} -->\n)(?:.*?\n)?(<!-- END {name} -->)", re.DOTALL)
+        if not pattern.search(card):
+            raise SystemExit(f"MODEL_CARD.md has no <!-- BEGIN {name} --> ... <!-- END {name} --> section")
+        card = pattern.sub(lambda m, text=text: m.group(1) + text + "\n" + m.group(2), card)
+    return card
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--check", action="store_true", help="only check that MODEL_CARD.md is up to date")
+    args = parser.parse_args()
+    card = CARD.read_text()
+    updated = render(card, sections(load_sources()))
+    if args.check:
+        if updated != card:
+            sys.exit("MODEL_CARD.md is out of date with docs/model-card/*.json: run python tools/model_card.py")
+        print("MODEL_CARD.md matches docs/model-card/*.json")
+        return
+    CARD.write_text(updated)
+    print(f"wrote {CARD}")
+
+
+if __name__ == "__main__":
+    main()

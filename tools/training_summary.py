@@ -1,0 +1,96 @@
+"""What a finished ``d4rt train`` run did, as JSON for the model card, read from the run directory.
+
+    python tools/training_summary.py /work/runs/ship-tiny --log /work/runs/ship-tiny.log \\
+        --out docs/model-card/training.json --copy-metrics docs/model-card/metrics.jsonl
+
+Reads the newest checkpoint's ``trainer.json`` (step, samples consumed, the training config), the
+run's ``metrics.jsonl`` (throughput of every logged window) and the model's ``config.json``, and
+records the machine this script runs on (run it where the training ran). Times:
+
+- ``training_seconds``: the sum of the logged windows (optimiser steps and data loading), which the
+  trainer measures without validation and checkpoint writes;
+- ``wall_seconds``: from ``train_config.yaml`` (written when the run started; rewritten by a resume, so
+  then it is the time since the last resume, and ``resumed`` says so, from the console output ``--log``)
+  to the newest checkpoint.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+from pathlib import Path
+
+import torch
+
+from d4rt.model import D4RT
+from d4rt.training.checkpoint import latest_checkpoint
+
+
+def training_seconds(records: list[dict]) -> float:
+    """Sum over logged windows of (steps in the window) / (steps per second)."""
+    total, previous = 0.0, 0
+    for record in records:
+        if "throughput/clips_per_s" in record:
+            total += (record["step"] - previous) / record["throughput/clips_per_s"]
+            previous = record["step"]
+    return total
+
+
+def cpu_model() -> str:
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.is_file():
+        for line in cpuinfo.read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    return platform.processor() or platform.machine()
+
+
+def summarise(run: Path, log: Path | None = None) -> dict:
+    checkpoint = latest_checkpoint(run / "checkpoints")
+    trainer = json.loads((checkpoint / "trainer.json").read_text())
+    config = trainer["config"]
+    records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    model = D4RT.from_pretrained(checkpoint)
+    batch = config["data"]["batch_size"] * config["run"]["grad_accum"]
+    dataset = config["data"]["dataset"]
+    return {
+        "preset": config["model"]["preset"],
+        "parameters": model.parameter_counts()["total"],
+        "max_frames": model.config.max_frames,
+        "steps": trainer["step"],
+        "clips_seen": trainer["next_sample"],
+        "clips_per_step": batch,
+        "frames_per_clip": dataset["frames"],
+        "input_size": dataset["size"],
+        "queries_per_clip": dataset["sampler"]["num_queries"],
+        "training_seconds": training_seconds(records),
+        "wall_seconds": (checkpoint / "trainer.json").stat().st_mtime - (run / "train_config.yaml").stat().st_mtime,
+        "resumed": log is not None and "resumed from" in log.read_text(errors="replace"),
+        "hardware": {"cpu": cpu_model(), "logical_cpus": os.cpu_count(), "device": config["run"]["device"],
+                     "torch": torch.__version__, "torch_threads": torch.get_num_threads()},
+        "config": config,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path, help="the run directory of d4rt train")
+    parser.add_argument("--out", type=Path, required=True, help="JSON file to write")
+    parser.add_argument("--log", type=Path, help="the console output of d4rt train (tells whether it resumed)")
+    parser.add_argument("--copy-metrics", type=Path, help="also copy the run's metrics.jsonl here")
+    args = parser.parse_args()
+    summary = summarise(args.run, args.log)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(summary, indent=1) + "\n")
+    if args.copy_metrics:
+        shutil.copyfile(args.run / "metrics.jsonl", args.copy_metrics)
+    print(f"{summary['preset']}: {summary['steps']} steps, {summary['clips_seen']} clips, "
+          f"{summary['training_seconds'] / 60:.1f} min training, {summary['wall_seconds'] / 60:.1f} min wall")
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
