@@ -44,6 +44,7 @@ def test_quick_run_writes_every_field_with_sane_values(quick_result):
     sizes = [row["chunk_size"] for row in result["decoder"]["chunks"]]
     assert 256 in sizes and result["default_chunk_size"] in sizes
     assert "RANDOM WEIGHTS" in stdout and "Tab. 3" in stdout
+    assert result["pose"]["pose_grid"] == 24 and "24x24 grid" in stdout  # the reconstruction's default
 
 
 @pytest.mark.parametrize("args, message", [
@@ -52,6 +53,7 @@ def test_quick_run_writes_every_field_with_sane_values(quick_result):
     (["--device", "tpu"], "device"),
     (["--size", "32", "--height", "32"], "--size"),
     (["--tolerance", "2"], "tolerance"),
+    (["--pose-grid", "1"], "pose grid"),
     (["--json", "/nonexistent-dir/x.json"], "does not exist"),
 ])
 def test_bad_input_is_one_line_and_status_2(args, message):

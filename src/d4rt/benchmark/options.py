@@ -33,6 +33,7 @@ class BenchOptions:
     best is kept). tolerance: relative precision of the largest track count at each target FPS.
     dense_size: side of the dense-tracking grid (None: the benchmark clip's own resolution).
     dense_clips: clips of synthetic-dynamic-v1 tracked densely (from clip_00).
+    pose_grid: points per side of the camera recipe's grid (None: ``Reconstruction``'s default).
     """
 
     preset: str = "tiny"
@@ -53,6 +54,7 @@ class BenchOptions:
     max_trials: int = 16
     dense_size: int | None = None
     dense_clips: int = 1
+    pose_grid: int | None = None
     seed: int = 0
     quick: bool = False
     progress: bool = True
@@ -83,6 +85,8 @@ class BenchOptions:
                 raise UserError(f"{name} must be an integer >= {low}, got {value!r}")
         if self.dense_size is not None and self.dense_size < 2:
             raise UserError(f"dense size must be at least 2, got {self.dense_size}")
+        if self.pose_grid is not None and self.pose_grid < 2:
+            raise UserError(f"pose grid must be at least 2, got {self.pose_grid}")
         if self.dense_clips > 48:
             raise UserError(f"synthetic-dynamic-v1 has 48 clips, got dense clips {self.dense_clips}")
         if not self.chunks or any(not isinstance(c, int) or c < 1 for c in self.chunks):

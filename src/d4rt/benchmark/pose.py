@@ -14,6 +14,7 @@ import torch
 
 from d4rt.benchmark.options import BenchOptions
 from d4rt.benchmark.timing import best_time
+from d4rt.reconstruction.reconstruction import DEFAULT_GRID
 
 
 def bench_pose(model, video: torch.Tensor, options: BenchOptions) -> dict:
@@ -21,12 +22,15 @@ def bench_pose(model, video: torch.Tensor, options: BenchOptions) -> dict:
     device = torch.device(options.device)
     frames = video.shape[0]
 
+    grid = {} if options.pose_grid is None else {"grid": options.pose_grid}
+
     def run():
-        return model.reconstruct(video, progress=False).cameras()
+        return model.reconstruct(video, progress=False, **grid).cameras()
 
     with options.autocast():
         seconds = best_time(run, device, options.repeats)
-    return {"pose_s": seconds, "pose_fps": frames / seconds, "pose_frames": frames}
+    return {"pose_s": seconds, "pose_fps": frames / seconds, "pose_frames": frames,
+            "pose_grid": options.pose_grid or DEFAULT_GRID}
 
 
 def bench_colmap(video: torch.Tensor, pose_s: float) -> dict:

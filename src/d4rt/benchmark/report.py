@@ -57,7 +57,8 @@ def format_table(result: dict) -> str:
         f"  3D tracks, source embedding shared {d['track_shared_queries_per_s']:,.0f} q/s vs not "
         f"{d['track_unshared_queries_per_s']:,.0f} q/s: {d['track_sharing_speedup']:.2f}x",
         "",
-        f"camera pose  {p['pose_frames']} frames in {p['pose_s'] * 1e3:.1f} ms: {_num(p['pose_fps'])} FPS (encoder included)",
+        f"camera pose  {p['pose_frames']} frames in {p['pose_s'] * 1e3:.1f} ms: {_num(p['pose_fps'])} FPS (encoder included, "
+        f"{p['pose_grid']}x{p['pose_grid']} grid)",
     ]
     if "colmap_s" in p:
         lines.append(f"  COLMAP on the same clip {p['colmap_s']:.2f} s ({p['colmap_registered_frames']} of "

@@ -51,6 +51,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--compare-colmap", action="store_true",
                         help="also time COLMAP SfM (pycolmap, the 'eval' extra) on the same clip")
     parser.add_argument("--dense-size", type=int, help="dense-tracking grid side (default: each clip's resolution)")
+    parser.add_argument("--pose-grid", type=int, help="points per side of the camera recipe's grid (default: "
+                        "the reconstruction default, 24)")
     parser.add_argument("--dense-clips", type=int, help="synthetic-dynamic-v1 clips tracked densely (default 1)")
     parser.add_argument("--tolerance", type=float, help="relative precision of each track count (default 0.02)")
     parser.add_argument("--quick", action="store_true", help="a tiny run for CI: 2 frames of 32x32, 2,048 queries, "
@@ -70,7 +72,8 @@ def options_from_args(args: argparse.Namespace):
     values = dict(preset=args.preset, device=args.device, dtype=args.dtype, frames=args.frames, height=height,
                   width=width, queries=args.queries, chunks=args.chunks, repeats=args.repeats, threads=args.threads,
                   compile=args.compile, video=args.video, compare_colmap=args.compare_colmap,
-                  dense_size=args.dense_size, dense_clips=args.dense_clips, tolerance=args.tolerance,
+                  dense_size=args.dense_size, dense_clips=args.dense_clips, pose_grid=args.pose_grid,
+                  tolerance=args.tolerance,
                   progress=not args.no_progress)
     if args.quick:
         return BenchOptions.quick_options(**values)

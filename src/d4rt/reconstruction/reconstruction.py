@@ -31,6 +31,10 @@ from d4rt.reconstruction.sources import as_source
 KEYS = ("points", "uv", "visibility", "confidence")
 
 
+# Points per side of the coarse grid of the camera recipe and of window alignment (paper Sec. 2.1).
+DEFAULT_GRID = 24
+
+
 class Reconstruction:
     """The 4D outputs of one video, decoded on demand from an answerer.
 
@@ -45,7 +49,7 @@ class Reconstruction:
     """
 
     def __init__(self, answerer, video, *, window: int | None = None, overlap: int | None = None,
-                 chunk_size: int = 1 << 16, grid: int = 24, align_fraction: float = 0.85,
+                 chunk_size: int = 1 << 16, grid: int = DEFAULT_GRID, align_fraction: float = 0.85,
                  progress: bool | None = None):
         self.video = _as_uint8_video(video)
         self.source = as_source(answerer)
