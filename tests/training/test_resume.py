@@ -1,9 +1,11 @@
-"""Kill and resume: a run stopped with SIGKILL and resumed ends bitwise equal to an uninterrupted run;
-a checkpoint half-written at the kill is never picked up."""
+"""Kill and resume: a run stopped with SIGKILL (or SIGTERM, which checkpoints the current step) and
+resumed ends bitwise equal to an uninterrupted run; a checkpoint half-written at the kill is never
+picked up."""
 
 from __future__ import annotations
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -58,6 +60,38 @@ def test_sigkill_mid_run_then_resume_is_bitwise_equal_to_an_uninterrupted_run(tm
     expected = [json.loads(line) for line in (reference / "metrics.jsonl").read_text().splitlines()]
     assert [r["step"] for r in logged] == list(range(1, 13))
     assert [r["loss/total"] for r in logged] == [r["loss/total"] for r in expected]
+
+
+def test_sigterm_writes_a_checkpoint_of_the_current_step_and_resume_loses_nothing(tmp_path, clip_dir):
+    """Preemption: SIGTERM mid-run finishes the step, checkpoints it (off the checkpoint schedule), exits
+    with 128 + SIGTERM; --resume then ends bitwise equal to an uninterrupted run."""
+    run = {"max_steps": 10, "checkpoint_every": 100, "log_every": 1}
+    config = write_config(tmp_path / "run.yaml", fast_config(clip_dir, run=run))
+    reference = tmp_path / "reference"
+    assert run_d4rt("train", "--config", str(config), "--out", str(reference)).returncode == 0
+
+    stopped = tmp_path / "stopped"
+    process = subprocess.Popen([sys.executable, "-m", "d4rt", "train", "--config", str(config), "--out", str(stopped)],
+                               env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    metrics = stopped / "metrics.jsonl"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and process.poll() is None:
+        if metrics.is_file() and len(metrics.read_text().splitlines()) >= 3:
+            break
+        time.sleep(0.01)
+    process.send_signal(signal.SIGTERM)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 128 + signal.SIGTERM, err
+    step = int(re.search(r"stopped at step (\d+) by SIGTERM", out).group(1))
+    assert 3 <= step < 10 and "checkpoint written, continue with --resume" in out + err
+    assert latest_checkpoint(stopped / "checkpoints").name == f"step-{step:08d}"  # not on the schedule
+
+    resumed = run_d4rt("train", "--config", str(config), "--out", str(stopped), "--resume")
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"at step {step}" in resumed.stdout + resumed.stderr
+    assert same_tensors(reference / "model.safetensors", stopped / "model.safetensors")
+    for name in ("model.safetensors", "optimizer.safetensors"):
+        assert same_tensors(reference / "checkpoints/step-00000010" / name, stopped / "checkpoints/step-00000010" / name)
 
 
 _KILL_MID_WRITE = """

@@ -43,6 +43,7 @@ def parse_overrides(items: list[str]) -> dict:
 
 def run(args) -> int:
     from d4rt.training import TrainConfig, train
+    from d4rt.training.stop import exit_status
 
     overrides = parse_overrides(args.set)
     if args.max_steps is not None:
@@ -51,6 +52,10 @@ def run(args) -> int:
         overrides["run.max_steps"] = args.max_steps
     config = TrainConfig.load(args.config, overrides)
     result = train(config, args.out, resume=args.resume)
+    if result.stopped_by is not None:  # a checkpoint of this step was written
+        if os.environ.get("RANK", "0") == "0":
+            print(f"stopped at step {result.step} by {result.stopped_by}; continue with --resume")
+        return exit_status(result.stopped_by)
     if os.environ.get("RANK", "0") == "0":
         print(f"trained to step {result.step}; weights in {result.out}")
     return 0

@@ -99,6 +99,14 @@ class DistributedContext:
             stacked /= self.world_size
         return dict(zip(keys, stacked.tolist()))
 
+    def any_flag(self, flag: bool) -> bool:
+        """True on every rank if ``flag`` is true on any rank (no collective when not distributed)."""
+        if not self.distributed:
+            return flag
+        value = torch.tensor([1.0 if flag else 0.0], device=self.device)
+        dist.all_reduce(value, op=dist.ReduceOp.MAX)
+        return bool(value.item())
+
     def broadcast_flag(self, flag: bool) -> bool:
         """Rank 0's ``flag`` on every rank."""
         if not self.distributed:

@@ -17,7 +17,9 @@ Run directory::
 
 ``train(config, out, resume=True)`` continues from the newest complete checkpoint exactly: the weights,
 optimiser state, step, data position and random-generator states are restored, so a run that is killed
-and resumed ends with the same weights as one that was not (bitwise on CPU with fixed seeds).
+and resumed ends with the same weights as one that was not (bitwise on CPU with fixed seeds). SIGTERM or
+SIGINT (preemption, ``kill``, Ctrl-C) stops the run after the current step with a checkpoint of that
+step, so nothing is lost (:mod:`d4rt.training.stop`).
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ from d4rt.training.logger import TrainLogger
 from d4rt.training.losses import d4rt_loss
 from d4rt.training.optimization import build_optimizer, learning_rate, set_learning_rate
 from d4rt.training.randomness import capture_rng_state, restore_rng_state, seed_rank
+from d4rt.training.stop import StopRequest
 from d4rt.training.validation import Validator
 
 # Config fields that may change when a run is resumed: they do not alter the training trajectory
@@ -63,11 +66,13 @@ RESUMABLE_CHANGES = ("run.max_steps", "run.log_every", "run.checkpoint_every", "
 
 @dataclass
 class TrainResult:
-    """What a finished run returns: the run directory, steps done, the last logged scalars."""
+    """What a run returns: the run directory, steps done, the last logged scalars, and the signal that
+    stopped it early (``"SIGTERM"`` / ``"SIGINT"``: a checkpoint of ``step`` was written) or None."""
 
     out: Path
     step: int
     metrics: dict[str, float]
+    stopped_by: str | None = None
 
 
 def train(config: TrainConfig, out: str | Path, resume: bool = False) -> TrainResult:
@@ -184,54 +189,63 @@ class Trainer:
         totals: dict[str, torch.Tensor] = {}
         last: dict[str, float] = {}
         window_start, window_steps = time.perf_counter(), 0
-        try:
-            while step < run.max_steps:
-                lr = learning_rate(step, cfg.optim, run.max_steps)
-                set_learning_rate(optimizer, lr)
-                for micro in range(run.grad_accum):
-                    batch = {k: v.to(context.device, non_blocking=True) for k, v in next(loader).items()}
-                    with gradient_sync(model, micro == run.grad_accum - 1):
-                        with self.autocast:
-                            out = model(batch["video"], batch["queries"], batch["aspect_ratio"])
-                        loss, terms = d4rt_loss(out, batch, cfg.loss)
-                        (loss / run.grad_accum).backward()
-                    for key, value in terms.items():
-                        totals[key] = totals.get(key, 0.0) + value / run.grad_accum
-                norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip)
-                norm = norm.full_tensor() if hasattr(norm, "full_tensor") else norm  # FSDP: a DTensor
-                if torch.isfinite(norm):
-                    optimizer.step()
-                else:  # the same decision on every rank: the norm is of the synchronised gradients
-                    skipped += 1
-                    logger.message(f"step {step}: non-finite gradient norm, update skipped")
-                optimizer.zero_grad(set_to_none=True)
-                step += 1
-                next_sample += stream.samples_per_step
-                window_steps += 1
-                totals["grad_norm"] = totals.get("grad_norm", 0.0) + norm.detach().float()
+        with StopRequest() as stop:
+            try:
+                while step < run.max_steps:
+                    lr = learning_rate(step, cfg.optim, run.max_steps)
+                    set_learning_rate(optimizer, lr)
+                    for micro in range(run.grad_accum):
+                        batch = {k: v.to(context.device, non_blocking=True) for k, v in next(loader).items()}
+                        with gradient_sync(model, micro == run.grad_accum - 1):
+                            with self.autocast:
+                                out = model(batch["video"], batch["queries"], batch["aspect_ratio"])
+                            loss, terms = d4rt_loss(out, batch, cfg.loss)
+                            (loss / run.grad_accum).backward()
+                        for key, value in terms.items():
+                            totals[key] = totals.get(key, 0.0) + value / run.grad_accum
+                    norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip)
+                    norm = norm.full_tensor() if hasattr(norm, "full_tensor") else norm  # FSDP: a DTensor
+                    if torch.isfinite(norm):
+                        optimizer.step()
+                    else:  # the same decision on every rank: the norm is of the synchronised gradients
+                        skipped += 1
+                        logger.message(f"step {step}: non-finite gradient norm, update skipped")
+                    optimizer.zero_grad(set_to_none=True)
+                    step += 1
+                    next_sample += stream.samples_per_step
+                    window_steps += 1
+                    totals["grad_norm"] = totals.get("grad_norm", 0.0) + norm.detach().float()
 
-                if step % run.log_every == 0 or step == run.max_steps:
-                    averaged = context.mean(totals)
-                    elapsed = time.perf_counter() - window_start
-                    clips_per_s = window_steps * stream.samples_per_step / elapsed
-                    last = {f"loss/{k}": v / window_steps for k, v in averaged.items() if k != "grad_norm"}
-                    last.update({"grad_norm": averaged["grad_norm"] / window_steps, "lr": lr,
-                                 "throughput/clips_per_s": clips_per_s,
-                                 "throughput/queries_per_s": clips_per_s * data.num_queries,
-                                 "skipped_steps": float(skipped)})
-                    logger.log(step, last)
-                    totals, window_start, window_steps = {}, time.perf_counter(), 0
-                paused = time.perf_counter()  # validation and checkpoints do not count as training time
-                if validator is not None and (step % cfg.validation.every == 0 or step == run.max_steps):
-                    scalars = self._validate(model, validator)
-                    logger.log(step, scalars)
-                    last.update(scalars)
-                if step % run.checkpoint_every == 0 or step == run.max_steps:
-                    self._save(model, optimizer, step, next_sample, skipped)
-                window_start += time.perf_counter() - paused
-                logger.advance()
-        finally:
-            logger.close()
+                    if step % run.log_every == 0 or step == run.max_steps:
+                        averaged = context.mean(totals)
+                        elapsed = time.perf_counter() - window_start
+                        clips_per_s = window_steps * stream.samples_per_step / elapsed
+                        last = {f"loss/{k}": v / window_steps for k, v in averaged.items() if k != "grad_norm"}
+                        last.update({"grad_norm": averaged["grad_norm"] / window_steps, "lr": lr,
+                                     "throughput/clips_per_s": clips_per_s,
+                                     "throughput/queries_per_s": clips_per_s * data.num_queries,
+                                     "skipped_steps": float(skipped)})
+                        logger.log(step, last)
+                        totals, window_start, window_steps = {}, time.perf_counter(), 0
+                    paused = time.perf_counter()  # validation and checkpoints do not count as training time
+                    if validator is not None and (step % cfg.validation.every == 0 or step == run.max_steps):
+                        scalars = self._validate(model, validator)
+                        logger.log(step, scalars)
+                        last.update(scalars)
+                    scheduled = step % run.checkpoint_every == 0 or step == run.max_steps
+                    if scheduled:
+                        self._save(model, optimizer, step, next_sample, skipped)
+                    window_start += time.perf_counter() - paused
+                    logger.advance()
+                    if context.any_flag(stop.requested is not None):  # every rank stops after the same step
+                        if not scheduled:
+                            self._save(model, optimizer, step, next_sample, skipped)
+                        stopped_by = stop.requested or "a signal to another rank"
+                        logger.message(f"stopped by {stopped_by} after step {step}: checkpoint written, continue with "
+                                       "--resume")
+                        return TrainResult(self.out, step, last, stopped_by)
+            finally:
+                logger.close()
         return TrainResult(self.out, step, last)
 
     # ------------------------------------------------------------------------------------------ outputs
