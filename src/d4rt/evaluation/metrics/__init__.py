@@ -4,7 +4,7 @@ Each module documents the protocol it reproduces and where it comes from:
 - ``depth``: video depth AbsRel / delta<1.25 with per-sequence alignment (MonST3R / CUT3R / pi3).
 - ``pose``: ATE / RPE after Sim(3) alignment (evo) and pose AUC (VGGT).
 - ``tracks``: TAPVid-3D APD3D / 3D-AJ / OA (tapnet) and world-frame APD3D / L1.
-- ``point_cloud``: L1 after mean shift; accuracy / completeness.
+- ``point_cloud``: L1 after mean shift; accuracy / completeness; ICP and the multi-view protocol.
 """
 
 from d4rt.evaluation.metrics.depth import (
@@ -15,7 +15,12 @@ from d4rt.evaluation.metrics.depth import (
     depth_metrics,
     evaluate_depth,
 )
-from d4rt.evaluation.metrics.point_cloud import accuracy_completeness, point_cloud_l1
+from d4rt.evaluation.metrics.point_cloud import (
+    accuracy_completeness,
+    icp,
+    multiview_accuracy_completeness,
+    point_cloud_l1,
+)
 from d4rt.evaluation.metrics.pose import (
     auc_from_errors,
     pose_auc,
@@ -38,6 +43,8 @@ __all__ = [
     "SCALINGS",
     "THRESHOLDS_PX",
     "accuracy_completeness",
+    "icp",
+    "multiview_accuracy_completeness",
     "aggregate_depth",
     "align_depth",
     "auc_from_errors",
