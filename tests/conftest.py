@@ -34,7 +34,7 @@ def clip(request, room_clip, outdoor_clip):
 
 def pixel_centre_queries(clip, frames, t_tgt=None, t_cam=None, dtype=np.float64):
     """Queries at every pixel centre of the given source frames (t_tgt = t_cam = t_src by default)."""
-    t, h, w = clip.num_frames, clip.height, clip.width
+    h, w = clip.height, clip.width
     ys, xs = np.meshgrid(np.arange(h), np.arange(w), indexing="ij")
     out = []
     for f in frames:

@@ -7,7 +7,7 @@ import numpy as np
 import torch
 
 from d4rt.errors import UserError
-from d4rt.geometry.umeyama import batched_umeyama, umeyama
+from d4rt.geometry.umeyama import batched_umeyama
 
 
 def intrinsics_from_points(points: np.ndarray, uv: np.ndarray, confidence: np.ndarray, height: int, width: int,
@@ -57,20 +57,14 @@ def _weighted_line(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[float, 
     return float(m), float(q)
 
 
-def relative_pose(points_here: np.ndarray, points_there: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """The rigid transform (4, 4) taking camera-"here" coordinates to camera-"there" coordinates, from
-    the same points (N, 3) at the same time expressed in both cameras, weighted by (N,) weights."""
-    sim = umeyama(torch.from_numpy(points_here), torch.from_numpy(points_there), torch.from_numpy(weights))
-    return sim.matrix().numpy()
-
-
 def relative_poses(points_here: np.ndarray, points_there: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """:func:`relative_pose` of many frames at once, without a Python loop over them (batched SVD).
+    """Per frame, the rigid transform (4, 4) taking camera-"here" coordinates to camera-"there"
+    coordinates, from the same points at the same time expressed in both cameras; all frames in one
+    batched SVD (no Python loop over them).
 
     points_here, points_there: (F, N, 3); weights: (F, N) (non-finite points or weights, or weights
-    <= 0, are left out per frame). Returns (F, 4, 4) rigid transforms, the same as calling
-    :func:`relative_pose` frame by frame; a frame with fewer than 3 usable points, or collinear ones,
-    raises :class:`UserError` as that does.
+    <= 0, are left out per frame). Returns (F, 4, 4); a frame with fewer than 3 usable points, or
+    collinear ones, raises :class:`UserError` (see :func:`d4rt.geometry.umeyama.batched_umeyama`).
     """
     sim = batched_umeyama(*(torch.from_numpy(np.asarray(a, dtype=np.float64))
                             for a in (points_here, points_there, weights)))
