@@ -49,6 +49,18 @@ def test_long_videos_are_encoded_window_by_window(model, monkeypatch):
     assert set(calls) == {24} and len(calls) >= 2  # whole windows only, never the whole video
 
 
+def test_dense_tracking_of_a_long_video_encodes_each_window_once(model, monkeypatch):
+    video = (np.random.default_rng(2).random((30, 24, 24, 3)) * 255).astype(np.uint8)
+    calls = []
+    original = model.encode
+    monkeypatch.setattr(model, "encode", lambda v: calls.append(len(v)) or original(v))
+    rec = model.reconstruct(video, grid=6)
+    dense = rec.dense_tracks(resolution=(6, 6), batch_size=64)
+    assert dense.coverage == 1.0 and dense.tracks.points.shape == (len(dense.sources), 30, 3)
+    assert len(calls) == len(rec.windows) == 2  # kept for the whole run, not re-encoded per batch
+    assert len(rec.source._cache) <= rec.source.cache_windows  # the usual cache size afterwards
+
+
 def test_bad_inputs_fail_clearly(room_clip):
     with pytest.raises(UserError, match="covers 8 frames but the video has 7"):
         Reconstruction(room_clip.oracle, room_clip.rgb[:7])
@@ -63,5 +75,3 @@ def test_bad_inputs_fail_clearly(room_clip):
         rec.depth(resolution="encoder")
     with pytest.raises(UserError, match="frame must be"):
         rec.tracks([[0, 1, 1]], frame="global")
-    with pytest.raises(UserError, match="one window"):
-        room_clip.reconstruction(window=4, overlap=1).dense_tracks()

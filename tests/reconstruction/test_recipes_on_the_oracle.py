@@ -133,6 +133,30 @@ def test_dense_tracking_covers_every_pixel_with_far_fewer_queries():
     assert np.allclose(uv, (src[:, 1:] + 0.5) / np.array([64, 48]))
 
 
+def test_dense_tracking_spans_windows_and_matches_the_whole_clip():
+    """A video of several windows is tracked densely as a whole: the grid covers every frame, and each
+    track, carried from window to window, equals the same track decoded from the whole clip."""
+    clip = render_clip(5, 12, 24, 32, environment="room", num_objects=4, camera_motion="orbit", moving_fraction=0.8)
+    split = clip.reconstruction(window=6, overlap=2)
+    assert len(split.windows) >= 3
+    dense = split.dense_tracks(batch_size=128)
+    assert dense.coverage == 1.0 and dense.naive_num_queries == 12 * 12 * 24 * 32
+    assert dense.tracks.points.shape == (len(dense.sources), 12, 3)
+    # Each window decodes only its own frames of the tracks it holds, so fewer than N * T queries.
+    assert 0 < dense.num_queries < len(dense.sources) * 12 * 1.5 and dense.query_reduction > 3
+    src = dense.sources.astype(float)
+    whole = clip.reconstruction().tracks(src, frame="camera")
+    carried = np.isfinite(dense.tracks.points).all(2)
+    assert carried.mean() > 0.8
+    assert np.abs(dense.tracks.points - whole.points)[carried].max() < 1e-6 * np.abs(whole.points).max()
+    assert np.array_equal(dense.tracks.visibility[carried], whole.visibility[carried])
+    # A different grid resolution maps its cells to the same normalised positions.
+    coarse = split.dense_tracks(resolution=(12, 16), batch_size=64)
+    rows = np.arange(len(coarse.sources))
+    uv = coarse.tracks.uv[rows, coarse.sources[:, 0]]
+    assert coarse.coverage == 1.0 and np.allclose(uv, (coarse.sources[:, 1:] + 0.5) / np.array([16, 12]))
+
+
 def test_windows_plan():
     assert plan_windows(10, None) == [(0, 10)]
     assert plan_windows(10, 12) == [(0, 10)]

@@ -14,6 +14,7 @@ the first window that contains it.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from functools import cached_property
 
 import numpy as np
@@ -60,6 +61,7 @@ class Reconstruction:
             raise UserError("chunk_size must be >= 1, grid >= 2 and align_fraction in (0, 1]")
         self.chunk_size, self.grid, self.align_fraction, self.progress = chunk_size, grid, align_fraction, progress
         self.windows = plan_windows(self.num_frames, window or self.source.max_window, overlap)
+        self.queries_decoded = 0  # every query answered so far (the recipes' cost)
 
     # ------------------------------------------------------------------------------------------------
     # Asking
@@ -72,6 +74,7 @@ class Reconstruction:
             raise AssertionError("query frames outside their window")  # a bug here, not bad input
         q[:, 2:] -= start
         answerer = self.source.window(start, stop)
+        self.queries_decoded += len(q)
         show = self.progress if self.progress is not None else len(q) > 8 * self.chunk_size
         parts = []
         for i in tqdm(range(0, max(len(q), 1), self.chunk_size), desc="decoding queries", unit="chunk",
@@ -295,79 +298,112 @@ class Reconstruction:
         home = np.array([self._owner(int(f)) for f in t0], dtype=np.int64)
         if frame == "world" and len(self.windows) > 1:
             world_to_ref = invert_rigid(self._global_pose(reference_frame))
-        # Forward from each track's home window, then backward from it. A window decodes the tracks
-        # that start in it or were handed to it, writes the frames it owns, and hands the tracks on.
-        for direction in (1, -1):
-            handle_uv, handle_t = uv0.copy(), t0.copy()
-            carried = np.zeros(n, dtype=bool)  # holds a handle into the window being processed
-            order = range(len(self.windows)) if direction == 1 else range(len(self.windows) - 1, -1, -1)
-            for win in order:
-                idx = np.nonzero((home == win) | carried)[0]
-                if len(idx) == 0:
-                    continue
-                a, b = self.windows[win]
-                frames = np.arange(a, b)
+        # Every track is decoded once in each window it reaches: its home window, then the windows after
+        # it (forward), then the windows before it (backward). A window writes the frames it owns and
+        # hands the tracks on through a shared frame; the home window's answers also start the backward
+        # hand-off, so no window decodes a track twice.
+        handle_uv, handle_t = uv0.copy(), t0.copy()
+        forward = np.zeros(n, dtype=bool)  # holds a handle into the window being processed
+        back_uv, back_t = np.zeros((n, 2)), np.zeros(n, dtype=np.int64)
+        back_window = np.full(n, -1)  # the earlier window a track is handed back to (-1: none)
+        passes = [(win, 1) for win in range(len(self.windows))] + [(win, -1) for win in range(len(self.windows) - 2, -1, -1)]
+        for win, direction in passes:
+            if direction == 1:
+                idx = np.nonzero((home == win) | forward)[0]
+                starts_uv, starts_t = handle_uv[idx], handle_t[idx]
+            else:
+                idx = np.nonzero(back_window == win)[0]
+                starts_uv, starts_t = back_uv[idx], back_t[idx]
+            if len(idx) == 0:
+                continue
+            a, b = self.windows[win]
+            frames = np.arange(a, b)
+            if frame == "camera":
+                cam = frames
+            else:
+                cam = np.full_like(frames, reference_frame if len(self.windows) == 1 else a)
+            q = _track_queries(starts_uv, starts_t, frames, cam)
+            ans = {k: v.reshape(len(idx), len(frames), *v.shape[1:]) for k, v in self._ask(win, q).items()}
+            p = ans["points"]
+            if len(self.windows) > 1:
                 if frame == "camera":
-                    cam = frames
+                    p = p * self._window_scale(win)
                 else:
-                    cam = np.full_like(frames, reference_frame if len(self.windows) == 1 else a)
-                q = _track_queries(handle_uv[idx], handle_t[idx], frames, cam)
-                ans = {k: v.reshape(len(idx), len(frames), *v.shape[1:]) for k, v in self._ask(win, q).items()}
-                p = ans["points"]
-                if len(self.windows) > 1:
-                    if frame == "camera":
-                        p = p * self._window_scale(win)
-                    else:
-                        p = self.window_to_world[win].apply(torch.from_numpy(p)).numpy()
-                        p = p @ world_to_ref[:3, :3].T + world_to_ref[:3, 3]
-                # The backward pass only writes for tracks handed back to this window (the home window
-                # was written going forward).
-                write = idx if direction == 1 else idx[home[idx] != win]
-                rows = np.isin(idx, write)
-                owned = np.array(self._owned(win)) - a
-                for key, value in (("points", p), ("uv", ans["uv"]), ("visibility", ans["visibility"]),
-                                   ("confidence", ans["confidence"])):
-                    out[key][write[:, None], owned + a] = value[rows][:, owned]
-                # Hand the tracks on through the shared frame where they are most visible.
-                nxt = win + direction
-                carried[:] = False
-                if 0 <= nxt < len(self.windows):
-                    na, nb = self.windows[nxt]
-                    shared = np.arange(max(a, na), min(b, nb)) - a
-                    vis = ans["visibility"][:, shared]
-                    best = np.argmax(vis, axis=1)
-                    rows_all = np.arange(len(idx))
-                    k = shared[best]
-                    new_uv = ans["uv"][rows_all, k]
-                    ok = (vis[rows_all, best] > 0.5) & np.all((new_uv >= 0) & (new_uv <= 1), 1)
-                    handle_uv[idx[ok]] = new_uv[ok]
-                    handle_t[idx[ok]] = k[ok] + a
-                    carried[idx[ok]] = True
+                    p = self.window_to_world[win].apply(torch.from_numpy(p)).numpy()
+                    p = p @ world_to_ref[:3, :3].T + world_to_ref[:3, 3]
+            owned = np.array(self._owned(win)) - a
+            for key, value in (("points", p), ("uv", ans["uv"]), ("visibility", ans["visibility"]),
+                               ("confidence", ans["confidence"])):
+                out[key][idx[:, None], owned + a] = value[:, owned]
+            if direction == 1:
+                forward[:] = False
+                ok, new_uv, new_t = self._hand_off(ans, win, win + 1)
+                handle_uv[idx[ok]], handle_t[idx[ok]] = new_uv[ok], new_t[ok]
+                forward[idx[ok]] = True
+                starting = home[idx] == win  # their backward journey starts from these answers
+            else:
+                starting = np.ones(len(idx), dtype=bool)
+                back_window[idx] = -1
+            ok, new_uv, new_t = self._hand_off(ans, win, win - 1)
+            go = starting & ok
+            back_uv[idx[go]], back_t[idx[go]], back_window[idx[go]] = new_uv[go], new_t[go], win - 1
         return Tracks(out["points"], out["visibility"], out["confidence"], out["uv"], frame, reference_frame)
+
+    def _hand_off(self, answers: dict, win: int, nxt: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where tracks decoded in window ``win`` continue in window ``nxt``: for each, the frame shared
+        by both where it is most visible and its (u, v) there. Returns (ok (N,), uv (N, 2), frame (N,));
+        ok is False where there is no such window or the track is hidden (or outside the image) in
+        every shared frame: it cannot be carried."""
+        count = len(answers["uv"])
+        if not 0 <= nxt < len(self.windows):
+            return np.zeros(count, dtype=bool), np.zeros((count, 2)), np.zeros(count, dtype=np.int64)
+        (a, b), (na, nb) = self.windows[win], self.windows[nxt]
+        shared = np.arange(max(a, na), min(b, nb)) - a
+        vis = answers["visibility"][:, shared]
+        best = np.argmax(vis, axis=1)
+        rows = np.arange(count)
+        k = shared[best]
+        uv = answers["uv"][rows, k]
+        ok = (vis[rows, best] > 0.5) & np.all((uv >= 0) & (uv <= 1), 1)
+        return ok, uv, k + a
 
     def dense_tracks(self, resolution: tuple[int, int] | None = None, batch_size: int = 1024,
                      visibility_threshold: float = 0.5) -> DenseTracks:
         """Camera-frame tracks of every pixel of every frame with the occupancy grid (Alg. 1).
 
-        resolution: (H, W) of the grid (default: the input video's). Runs within one window: long
-        videos must be tracked window by window (``Reconstruction(..., window=...)`` with one window).
+        resolution: (H, W) of the grid (default: the input video's). A video of several windows is
+        tracked as a whole: each batch of sources is decoded as full-video tracks carried from window to
+        window (:meth:`tracks`), so the grid spans every frame; the encoded windows are kept for the
+        whole run (memory grows with the number of windows) rather than re-encoded for every batch.
+        ``num_queries`` counts the tracking queries actually decoded (window alignment, shared with the
+        other recipes, is not counted).
         """
-        if len(self.windows) > 1:
-            raise UserError("dense tracking runs within one window; this video spans "
-                            f"{len(self.windows)} windows (track a shorter clip, or each window separately)")
         h, w = self.output_size(resolution)
         t = self.num_frames
         frames = np.arange(t)
+        single = len(self.windows) == 1
+        if not single:
+            _ = self.window_to_world  # align the windows first, so that the count below is tracking alone
+        start = self.queries_decoded
 
-        def ask(src: np.ndarray) -> dict:
+        def ask_one_window(src: np.ndarray) -> dict:
             uv = np.stack([(src[:, 1] + 0.5) / w, (src[:, 2] + 0.5) / h], 1)
             out = self._ask(0, _track_queries(uv, src[:, 0], frames, frames))
             return {k: v.reshape(len(src), t, *v.shape[1:]) for k, v in out.items()}
 
-        res = occupancy_tracking(ask, t, h, w, batch_size, visibility_threshold, progress=bool(self.progress))
+        def ask_across_windows(src: np.ndarray) -> dict:
+            # Grid cells to input-video pixels (OpenCV centres): the same normalised (u, v).
+            pixels = np.stack([src[:, 0], (src[:, 1] + 0.5) * self.width / w - 0.5,
+                               (src[:, 2] + 0.5) * self.height / h - 0.5], 1).astype(np.float64)
+            tr = self.tracks(pixels, frame="camera")
+            return {"points": tr.points, "uv": tr.uv, "visibility": tr.visibility, "confidence": tr.confidence}
+
+        with _keeping_windows(self.source, len(self.windows)):
+            res = occupancy_tracking(ask_one_window if single else ask_across_windows, t, h, w, batch_size,
+                                     visibility_threshold, progress=bool(self.progress))
         tracks = Tracks(res["points"], res["visibility"], res["confidence"], res["uv"], "camera", 0)
-        return DenseTracks(tracks, res["sources"], res["num_queries"], t * t * h * w, float(res["grid"].mean()),
-                           (h, w))
+        return DenseTracks(tracks, res["sources"], self.queries_decoded - start, t * t * h * w,
+                           float(res["grid"].mean()), (h, w))
 
     def save(self, directory, formats="all", **options) -> list:
         """Write the outputs ("all", or names such as ``["npz", "ply", "colmap"]``: see
@@ -449,6 +485,17 @@ def _track_queries(uv: np.ndarray, t_src: np.ndarray, frames: np.ndarray, cams: 
     q[..., 3] = frames[None]
     q[..., 4] = cams[None]
     return q.reshape(-1, 5)
+
+
+@contextmanager
+def _keeping_windows(source, count: int):
+    """Let a source that caches encoded windows keep ``count`` of them for the duration."""
+    keeping = getattr(source, "keeping", None)
+    if keeping is None:
+        yield
+    else:
+        with keeping(count):
+            yield
 
 
 def _finite_weights(w: np.ndarray) -> np.ndarray:

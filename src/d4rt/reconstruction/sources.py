@@ -8,6 +8,7 @@ any window directly.
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from typing import Protocol
 
 import numpy as np
@@ -69,6 +70,20 @@ class ModelSource:
             self._cache.pop(next(iter(self._cache)))  # release the least recently used window first
         self._cache[key] = self.model.encode(self.video[start:stop])
         return self._cache[key]
+
+    @contextmanager
+    def keeping(self, count: int):
+        """Keep up to ``count`` encoded windows while inside (recipes that sweep every window many times,
+        such as dense tracking, would otherwise re-encode them on every sweep); back to the usual
+        number, releasing the oldest, on leaving."""
+        usual = self.cache_windows
+        self.cache_windows = max(usual, count)
+        try:
+            yield self
+        finally:
+            self.cache_windows = usual
+            while len(self._cache) > usual:
+                self._cache.pop(next(iter(self._cache)))
 
 
 class _FrameRange:
