@@ -45,27 +45,25 @@ def sample_rgb_patches(
     b, t, h, w, _ = video.shape
     n = uv.shape[1]
     device = video.device
-    offsets = torch.arange(size, device=device, dtype=torch.float32) - (size - 1) / 2
-    x = (uv[..., 0].float() * w - 0.5)[..., None] + offsets  # (B, N, size) sample columns
-    y = (uv[..., 1].float() * h - 0.5)[..., None] + offsets  # (B, N, size) sample rows
-    x, y = x[..., None, :].expand(b, n, size, size), y[..., :, None].expand(b, n, size, size)
+    # Samples are whole pixels apart, so every sample of a patch has the same sub-pixel offset: gather
+    # one (size + 1)^2 window per query and blend its four shifted copies with four scalar weights
+    # (a third of the reads of blending each sample's own four neighbours).
+    x = uv[..., 0].float() * w - 0.5 - (size - 1) / 2  # (B, N) left sample column
+    y = uv[..., 1].float() * h - 0.5 - (size - 1) / 2  # (B, N) top sample row
     x0, y0 = x.floor(), y.floor()
-    wx1, wy1 = x - x0, y - y0
-    x0, y0 = x0.long(), y0.long()
-
-    flat = video.reshape(b * t * h * w, 3)
-    base = ((torch.arange(b, device=device)[:, None] * t + frame.long()) * (h * w))[..., None, None]
+    fx, fy = (x - x0)[..., None, None, None], (y - y0)[..., None, None, None]
+    steps = torch.arange(size + 1, device=device)
+    cols = x0.long()[..., None] + steps  # (B, N, size + 1)
+    rows = y0.long()[..., None] + steps
+    inside = ((rows >= 0) & (rows < h))[..., :, None] & ((cols >= 0) & (cols < w))[..., None, :]
+    base = (torch.arange(b, device=device)[:, None] * t + frame.long()) * (h * w)  # (B, N)
+    index = base[..., None, None] + rows.clamp(0, h - 1)[..., :, None] * w + cols.clamp(0, w - 1)[..., None, :]
     scale = 255.0 if video.dtype == torch.uint8 else 1.0
     mean, std = mean.to(device, torch.float32), std.to(device, torch.float32)
-    out = torch.zeros(b, n, size, size, 3, device=device, dtype=torch.float32)
-    for dy, wy in ((0, 1 - wy1), (1, wy1)):
-        for dx, wx in ((0, 1 - wx1), (1, wx1)):
-            xi, yi = x0 + dx, y0 + dy
-            inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
-            index = base + yi.clamp(0, h - 1) * w + xi.clamp(0, w - 1)
-            pixel = (flat[index].float() / scale - mean) / std
-            out += pixel * (wx * wy * inside)[..., None]
-    return out
+    window = video.reshape(b * t * h * w, 3)[index].float()  # (B, N, size + 1, size + 1, 3)
+    window = (window / scale - mean) / std * inside[..., None]  # outside the image: 0, the mean colour
+    top = window[..., :-1, :, :] * (1 - fy) + window[..., 1:, :, :] * fy
+    return top[..., :-1, :] * (1 - fx) + top[..., 1:, :] * fx
 
 
 class QueryEmbedding(nn.Module):
