@@ -8,6 +8,8 @@ import sys
 
 import pytest
 
+from d4rt.reconstruction.reconstruction import DEFAULT_GRID
+
 REQUIRED = ("device", "preset", "frames", "height", "width", "encoder_tokens_per_s", "decoder_queries_per_s",
             "kv_cache_speedup", "pose_fps", "dense_query_reduction", "tracks_at_fps", "peak_memory_bytes")
 
@@ -36,6 +38,9 @@ def test_quick_run_writes_every_field_with_sane_values(quick_result):
                 "peak_memory_bytes", "encoder_clips_per_s", "encoder_tflops_per_s", "track_sharing_speedup"):
         assert isinstance(result[key], (int, float)) and math.isfinite(result[key]) and result[key] > 0, key
     assert result["dense_query_reduction"] > 1
+    parts = result["peak_memory_bytes_by_part"]
+    assert sorted(parts) == sorted(["encoder", "decoder", "pose", "tracks", "dense"])
+    assert result["peak_memory_bytes"] == max(parts.values()) and "peak memory" in stdout
     counts = result["tracks_at_fps"]
     assert sorted(counts) == sorted(["60", "24", "10", "1"])
     by_fps = [counts[k] for k in ("60", "24", "10", "1")]
@@ -44,7 +49,7 @@ def test_quick_run_writes_every_field_with_sane_values(quick_result):
     sizes = [row["chunk_size"] for row in result["decoder"]["chunks"]]
     assert 256 in sizes and result["default_chunk_size"] in sizes
     assert "RANDOM WEIGHTS" in stdout and "Tab. 3" in stdout
-    assert result["pose"]["pose_grid"] == 24 and "24x24 grid" in stdout  # the reconstruction's default
+    assert result["pose"]["pose_grid"] == DEFAULT_GRID and f"{DEFAULT_GRID}x{DEFAULT_GRID} grid" in stdout
 
 
 @pytest.mark.parametrize("args, message", [

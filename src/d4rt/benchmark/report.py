@@ -72,8 +72,11 @@ def format_table(result: dict) -> str:
         lines.append(f"  {row['clip']} grid {row['grid'][0]}x{row['grid'][1]}x{row['frames']}: {row['queries']:,} "
                      f"queries vs naive {row['naive_queries']:,} ({row['reduction']:.1f}x fewer), "
                      f"{row['tracks']:,} tracks, {row['wall_s']:.2f} s with the model")
+    by_part = ", ".join(f"{part} {_mib(b)}" for part, b in result["peak_memory_bytes_by_part"].items())
+    colmap = result["pose"].get("colmap_peak_rss_bytes")
     lines += ["", f"peak memory {_mib(result['peak_memory_bytes'])}"
-              f"{' (CPU peak RSS)' if result['device'] == 'cpu' else ' (CUDA max allocated)'}   "
+              f"{' (CPU peak RSS)' if result['device'] == 'cpu' else ' (CUDA max allocated)'}: {by_part}"
+              + (f"; COLMAP {_mib(colmap)} (CPU peak RSS)" if colmap is not None else ""),
               f"total {result['total_s']:.1f} s"]
     return "\n".join(lines)
 

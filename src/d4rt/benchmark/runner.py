@@ -12,7 +12,7 @@ from d4rt.benchmark.dense import bench_dense
 from d4rt.benchmark.encoder import bench_encoder
 from d4rt.benchmark.options import BenchOptions, make_model, make_video
 from d4rt.benchmark.pose import bench_colmap, bench_pose
-from d4rt.benchmark.timing import peak_memory_bytes, peak_rss_bytes, reset_peak_memory
+from d4rt.benchmark.timing import measure_peak, peak_rss_bytes, reset_peak_memory
 from d4rt.benchmark.tracks import bench_tracks_at_fps
 
 PARTS = ("encoder", "decoder", "pose", "tracks", "dense")
@@ -44,22 +44,35 @@ def run_benchmark(options: BenchOptions, log=print) -> dict:
         f"-> {config.image_size}x{config.image_size} encoder input, {options.dtype} on {name} "
         f"({torch.get_num_threads()} CPU threads); RANDOM WEIGHTS (speed does not depend on them)")
 
+    # Each part's peak memory is its own (the peak is reset before each), and COLMAP's is kept apart.
+    peaks, rss_peaks = {}, {}
+
+    def part(name: str, fn):
+        result, peaks[name] = measure_peak(device, fn)
+        rss_peaks[name] = peak_rss_bytes()  # reset with the device's peak
+        return result
+
     log("encoder ...")
-    encoder = bench_encoder(model, video, options, name)
-    with options.autocast():
-        scene = model.encode(video)
+    encoder = part("encoder", lambda: bench_encoder(model, video, options, name))
+
+    def decode():
+        with options.autocast():
+            scene = model.encode(video)
+        return bench_decoder(model, scene, options)
+
     log("decoder ...")
-    decoder = bench_decoder(model, scene, options)
-    del scene
+    decoder = part("decoder", decode)
     log("camera pose ...")
-    pose = bench_pose(model, video, options)
+    pose = part("pose", lambda: bench_pose(model, video, options))
     if options.compare_colmap:
         log("camera pose with COLMAP (same clip) ...")
-        pose.update(bench_colmap(video, pose["pose_s"]))
+        colmap, pose["colmap_peak_rss_bytes"] = measure_peak(torch.device("cpu"),
+                                                             lambda: bench_colmap(video, pose["pose_s"]))
+        pose.update(colmap)
     log("tracks at target FPS (Tab. 3) ...")
-    tracks = bench_tracks_at_fps(model, video, options, decoder["track_shared_queries_per_s"])
+    tracks = part("tracks", lambda: bench_tracks_at_fps(model, video, options, decoder["track_shared_queries_per_s"]))
     log("dense tracking ...")
-    dense = bench_dense(model, options)
+    dense = part("dense", lambda: bench_dense(model, options))
 
     preset = type(config).preset(options.preset)
     return {
@@ -86,9 +99,10 @@ def run_benchmark(options: BenchOptions, log=print) -> dict:
         "pose_fps": pose["pose_fps"],
         "dense_query_reduction": dense["query_reduction"],
         "tracks_at_fps": {f"{fps:g}": result["tracks"] for fps, result in tracks.items()},
-        "peak_memory_bytes": peak_memory_bytes(device),
+        "peak_memory_bytes": max(peaks.values()),
         # everything else
-        "peak_rss_bytes": peak_rss_bytes(),
+        "peak_memory_bytes_by_part": peaks,
+        "peak_rss_bytes": max(rss_peaks.values()),
         "encoder_clips_per_s": encoder["clips_per_s"],
         "encoder_tflops_per_s": encoder["tflops_per_s"],
         "mfu": encoder["mfu"],

@@ -39,20 +39,41 @@ def best_time(fn: Callable[[], object], device: torch.device, repeats: int = 3, 
 
 
 def reset_peak_memory(device: torch.device) -> None:
-    """Start a new CUDA peak (the CPU's resident-set peak cannot be reset: it is the process's)."""
+    """Start a new peak: CUDA's max-allocated counter, and on Linux the process's resident-set peak
+    (writing 5 to /proc/self/clear_refs resets VmHWM). Elsewhere the CPU peak is the process's."""
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+    except OSError:
+        pass  # not Linux, or not allowed: the peak stays the whole process's
 
 
 def peak_rss_bytes() -> int:
-    """The process's peak resident set size so far (bytes), from getrusage (KiB on Linux, bytes on macOS)."""
+    """Peak resident set size (bytes) since the last :func:`reset_peak_memory` on Linux (VmHWM), else
+    the process's peak from getrusage (KiB on Linux, bytes on macOS)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return int(peak if sys.platform == "darwin" else peak * 1024)
 
 
 def peak_memory_bytes(device: torch.device) -> int:
     """CUDA: the most memory tensors held at once since :func:`reset_peak_memory` (max allocated).
-    CPU: the process's peak resident set size (model, inputs, Python and everything else included)."""
+    CPU: the peak resident set size since then (model, inputs, Python and everything else included)."""
     if device.type == "cuda":
         return int(torch.cuda.max_memory_allocated(device))
     return peak_rss_bytes()
+
+
+def measure_peak(device: torch.device, fn: Callable[[], object]) -> tuple[object, int]:
+    """``fn()`` and the peak memory (bytes, :func:`peak_memory_bytes`) while it ran."""
+    reset_peak_memory(device)
+    result = fn()
+    return result, peak_memory_bytes(device)
