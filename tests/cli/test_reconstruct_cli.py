@@ -136,7 +136,8 @@ def test_long_video_windows_under_bf16(tmp_path, clip, checkpoint, cli):
     video = tmp_path / "v.npy"
     np.save(video, clip.rgb)
     r = cli("reconstruct", video, "-o", tmp_path / "out", "--checkpoint", checkpoint, "--max-frames", "7",
-            "--window", "4", "--overlap", "2", "--bf16", "--tracks", "2", "--outputs", "npz,tum")
+            "--window", "4", "--overlap", "2", "--bf16", "--tracks", "2", "--outputs", "npz,tum,dense-tracks",
+            "--dense-resolution", "8x6")
     assert r.returncode == 0, r.stderr
     # Windows [0, 4), [2, 6), [3, 7); the source keeps one encoded window, so recipes that go back to a
     # window encode it again.
@@ -144,6 +145,11 @@ def test_long_video_windows_under_bf16(tmp_path, clip, checkpoint, cli):
     with np.load(tmp_path / "out" / "reconstruction.npz") as npz:
         assert npz["depth"].shape == (7, 24, 32) and np.isfinite(npz["cam_to_world"]).all()
         np.testing.assert_allclose(npz["cam_to_world"][0], np.eye(4), atol=1e-9)
+        assert not any(key.startswith("dense") for key in npz)
+    with np.load(tmp_path / "out" / "dense_tracks.npz") as dense:  # tracked across the three windows
+        n = len(dense["sources"])
+        assert dense["points_world"].shape == (n, 7, 3) and tuple(dense["resolution"]) == (6, 8)
+        assert float(dense["coverage"]) == 1.0 and 0 < int(dense["num_queries"]) < int(dense["naive_num_queries"])
 
 
 def _make_bad_inputs(d: Path, clip):

@@ -64,6 +64,26 @@ def test_npz_holds_every_array_and_matches_ground_truth(clip, saved):
     np.testing.assert_array_equal(npz["point_colors"], clip.rgb[f, y, x])
 
 
+def test_dense_tracks_file_matches_ground_truth_and_is_left_out_of_all(clip, saved):
+    out, npz = saved
+    assert "dense-tracks" not in exports.parse_formats("all") and not any(k.startswith("dense") for k in npz)
+    t, h, w = clip.depth.shape
+    with np.load(out / "dense_tracks.npz") as dense:
+        src, world, cam = dense["sources"], dense["points_world"], dense["points_camera"]
+        assert tuple(dense["resolution"]) == (h, w) and float(dense["coverage"]) == 1.0
+        assert int(dense["naive_num_queries"]) == t * t * h * w
+        assert int(dense["num_queries"]) == len(src) * t < int(dense["naive_num_queries"])
+        # Each track's point at frame k, moved into the world (camera 0), is the ground-truth point.
+        uv = pixel_to_uv(src[:, 1:].astype(np.float64), h, w)
+        for k in (0, t - 1):
+            q = np.concatenate([uv, src[:, :1], np.full((len(src), 2), float(k))], 1).astype(np.float64)
+            q[:, 4] = 0
+            truth = clip.oracle.query(q)["points"].numpy()
+            np.testing.assert_allclose(world[:, k], truth, atol=1e-4)
+        np.testing.assert_allclose(apply_transform(_gt_poses(clip)[None], cam.astype(np.float64)), world, atol=1e-4)
+        assert dense["visibility"][np.arange(len(src)), src[:, 0]].min() == 1  # visible at its own source
+
+
 def test_known_intrinsics_hold_at_another_output_resolution(clip, tmp_path):
     """Intrinsics given in input pixels are rescaled for depth maps of another size (here another aspect
     ratio too): unprojecting the saved depth with the saved intrinsics gives the true 3D points."""

@@ -11,7 +11,7 @@ import numpy as np
 from tqdm import tqdm
 
 from d4rt.errors import UserError
-from d4rt.io.exports import FORMATS
+from d4rt.io.exports import FORMATS, ON_REQUEST
 
 
 def register(subparsers) -> None:
@@ -54,8 +54,12 @@ def register(subparsers) -> None:
                          help="track an N x N grid of points (default: 16; 0: no tracks)")
     outputs.add_argument("--track-frame", type=int, default=0, metavar="F",
                          help="frame the tracked grid starts from (default: 0)")
+    outputs.add_argument("--dense-resolution", default=None, metavar="WxH",
+                         help="grid of the dense-tracks output: 'encoder' or WIDTHxHEIGHT (default, or 'original': the "
+                              "depth maps' size, the input's unless --resolution says otherwise)")
     outputs.add_argument("--outputs", default="all",
-                         help=f"comma-separated outputs to write (default: all): {', '.join(FORMATS)}")
+                         help=f"comma-separated outputs to write: {', '.join(FORMATS)} (default: all, which leaves "
+                              f"out the costly {', '.join(ON_REQUEST)})")
     p.set_defaults(func=run)
 
 
@@ -70,14 +74,14 @@ def parse_intrinsics(text: str) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
-def parse_resolution(text: str):
-    """'original' -> None, 'encoder' -> 'encoder', 'WxH' -> (H, W)."""
+def parse_resolution(text: str, option: str = "--resolution"):
+    """'original' -> None, 'encoder' -> 'encoder', 'WxH' -> (H, W); a bad value names ``option``."""
     if text in ("original", "encoder"):
         return None if text == "original" else text
     parts = text.lower().split("x")
     if len(parts) == 2 and all(p.isdigit() and int(p) > 0 for p in parts):
         return int(parts[1]), int(parts[0])
-    raise UserError(f"--resolution must be 'original', 'encoder' or WIDTHxHEIGHT (e.g. 640x480), got {text!r}")
+    raise UserError(f"{option} must be 'original', 'encoder' or WIDTHxHEIGHT (e.g. 640x480), got {text!r}")
 
 
 def has_bundled_model() -> bool:
@@ -110,6 +114,9 @@ class EncodeProgress:
             self.bar.update()
         return scene
 
+    def keeping(self, count: int):
+        return self.source.keeping(count)
+
 
 def run(args) -> int:
     import torch
@@ -122,6 +129,7 @@ def run(args) -> int:
     # Every option is checked before any work, so a bad one costs nothing and writes nothing.
     intrinsics = parse_intrinsics(args.intrinsics) if args.intrinsics else None
     resolution = parse_resolution(args.resolution)
+    dense_resolution = parse_resolution(args.dense_resolution or "original", "--dense-resolution")
     formats = parse_formats(args.outputs)
     out_dir = check_output_dir(args.out)
     selection = FrameRange(args.start, args.end, args.stride, args.max_frames)
@@ -139,7 +147,8 @@ def run(args) -> int:
         rec = Reconstruction(source, frames.rgb, window=args.window, overlap=args.overlap, progress=True)
         paths = rec.save(out_dir, formats, resolution=resolution, intrinsics=intrinsics,
                          min_confidence=args.min_confidence, point_stride=args.point_stride, track_grid=args.tracks,
-                         track_frame=args.track_frame, timestamps=frames.timestamps if frames.has_clock else None,
+                         track_frame=args.track_frame, dense_resolution=dense_resolution,
+                         timestamps=frames.timestamps if frames.has_clock else None,
                          fps=frames.fps, progress=True)
     print(f"wrote {out_dir}/: {', '.join(p.name + ('/' if p.is_dir() else '') for p in paths)}")
     return 0

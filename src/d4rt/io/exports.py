@@ -46,7 +46,10 @@ FORMATS = {
     "tracks-video": "tracks.mp4",
     "rerun": "reconstruction.rrd",
     "html": "viewer.html",
+    "dense-tracks": "dense_tracks.npz",
 }
+# Asked for by name only ("all" leaves them out): dense tracking decodes millions of queries.
+ON_REQUEST = ("dense-tracks",)
 # What each format needs decoded.
 _NEEDS = {
     "npz": {"depth", "cameras", "points", "tracks"},
@@ -59,6 +62,7 @@ _NEEDS = {
     "tracks-video": {"tracks", "cameras"},
     "rerun": {"depth", "cameras", "points", "tracks"},
     "html": {"points", "cameras", "tracks"},
+    "dense-tracks": {"dense", "cameras"},
 }
 DEFAULT_FPS = 10.0  # for the videos and the viewer when the input has no clock
 
@@ -100,6 +104,7 @@ class ReconstructionOutputs:
     track_visibility: np.ndarray | None = None
     track_confidence: np.ndarray | None = None
     track_uv: np.ndarray | None = None
+    dense: dict | None = None  # the arrays of dense_tracks.npz (written by that format alone)
 
     @property
     def num_frames(self) -> int:
@@ -135,10 +140,11 @@ class ReconstructionOutputs:
 
 def parse_formats(formats) -> list[str]:
     """"all", a comma-separated string or a list of names -> the list of format names (in FORMATS
-    order). With "all", the rerun recording is left out (with a notice) when rerun-sdk is missing; asked
-    for by name, it is an error."""
+    order). "all" is every format but those in ON_REQUEST (dense tracks). With "all", the rerun recording
+    is left out (with a notice) when rerun-sdk is missing; asked for by name, it is an error."""
     if isinstance(formats, str):
-        names = list(FORMATS) if formats == "all" else [f.strip() for f in formats.split(",") if f.strip()]
+        names = ([f for f in FORMATS if f not in ON_REQUEST] if formats == "all"
+                 else [f.strip() for f in formats.split(",") if f.strip()])
         everything = formats == "all"
     else:
         names, everything = list(formats), False
@@ -163,7 +169,8 @@ def check_output_dir(directory: str | Path) -> Path:
 
 def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, min_confidence: float | None = None,
                     point_stride: int | None = None, track_grid: int = 16, track_frame: int = 0,
-                    timestamps=None, fps: float | None = None, progress: bool = False) -> ReconstructionOutputs:
+                    dense_resolution=None, timestamps=None, fps: float | None = None,
+                    progress: bool = False) -> ReconstructionOutputs:
     """Decode what ``formats`` need from a :class:`d4rt.reconstruction.Reconstruction`.
 
     resolution: depth maps at None (the input's size, continuous queries), "encoder" or (H, W).
@@ -172,7 +179,8 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     and depth pixels below it are dropped (None: keep every positive confidence). point_stride: point
     cloud from every n-th pixel of the input (default: the input-to-output size ratio, so the cloud is
     about as dense as the depth maps). track_grid: tracks start from a track_grid x track_grid grid of
-    pixels of frame ``track_frame`` (0: no tracks). timestamps: (T,) seconds (default: frame numbers);
+    pixels of frame ``track_frame`` (0: no tracks). dense_resolution: (H, W) of the dense-tracking grid
+    (None: the depth maps' resolution; "encoder" works too). timestamps: (T,) seconds (default: frame numbers);
     fps: for the videos and the viewer (default: from the timestamps, else 10).
     """
     t, h, w = rec.video.shape[:3]
@@ -193,7 +201,7 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     out_h, out_w = rec.output_size(resolution)
     if "depth" in needs:
         needs.add("cameras")  # the depth maps' intrinsics
-    stages = [s for s in ("cameras", "depth", "points", "tracks") if s in needs]
+    stages = [s for s in ("cameras", "depth", "points", "tracks", "dense") if s in needs]
     bar = tqdm(stages, desc="query", unit="stage", disable=not progress)
     for stage in bar:
         bar.set_postfix_str(stage)
@@ -221,7 +229,22 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
             else:
                 out.tracks, out.track_uv = np.zeros((0, t, 3)), np.zeros((0, t, 2))
                 out.track_visibility, out.track_confidence = np.zeros((0, t)), np.zeros((0, t))
+        elif stage == "dense":
+            out.dense = _dense_arrays(rec.dense_tracks(dense_resolution or (out_h, out_w)), out.cam_to_world)
     return out
+
+
+def _dense_arrays(dense, cam_to_world: np.ndarray) -> dict:
+    """The contents of dense_tracks.npz (see docs/outputs.md): tracks in camera k at frame k and in the
+    world (camera 0), float32."""
+    cam = dense.tracks.points
+    world = np.einsum("kij,nkj->nki", cam_to_world[:, :3, :3], cam) + cam_to_world[None, :, :3, 3]
+    return {"sources": dense.sources.astype(np.int32), "points_camera": cam.astype(np.float32),
+            "points_world": world.astype(np.float32), "uv": dense.tracks.uv.astype(np.float32),
+            "visibility": dense.tracks.visibility.astype(np.float32),
+            "confidence": dense.tracks.confidence.astype(np.float32),
+            "resolution": np.array(dense.resolution), "num_queries": np.int64(dense.num_queries),
+            "naive_num_queries": np.int64(dense.naive_num_queries), "coverage": np.float64(dense.coverage)}
 
 
 def _rate(stamps: np.ndarray) -> float:
@@ -252,7 +275,8 @@ def write_outputs(out: ReconstructionOutputs, directory: str | Path, formats, pr
 
 
 def _write_npz(out: ReconstructionOutputs, stage: Path, title: str) -> Path:
-    arrays = {f.name: getattr(out, f.name) for f in fields(out) if f.name not in ("rgb", "fps", "min_confidence")}
+    arrays = {f.name: getattr(out, f.name) for f in fields(out)
+              if f.name not in ("rgb", "fps", "min_confidence", "dense")}
     arrays.update(fps=np.float64(out.fps), video_size=np.array(out.rgb.shape[1:3]),
                   min_confidence=np.float64(np.nan if out.min_confidence is None else out.min_confidence))
     path = stage / "reconstruction.npz"
@@ -303,9 +327,15 @@ def _write_html(out, stage, title):
                       title=title)
 
 
+def _write_dense(out, stage, title):
+    path = stage / "dense_tracks.npz"
+    np.savez_compressed(path, **out.dense)
+    return path
+
+
 _WRITERS = {"npz": _write_npz, "depth": _write_depth, "depth-video": _write_depth_video, "ply": _write_ply,
             "glb": _write_glb, "colmap": _write_colmap, "tum": _write_tum, "tracks-video": _write_tracks_video,
-            "rerun": _write_rerun, "html": _write_html}
+            "rerun": _write_rerun, "html": _write_html, "dense-tracks": _write_dense}
 
 
 @contextmanager
