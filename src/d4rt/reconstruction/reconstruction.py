@@ -33,7 +33,7 @@ KEYS = ("points", "uv", "visibility", "confidence")
 
 
 # Points per side of the coarse grid of the camera recipe and of window alignment (paper Sec. 2.1).
-DEFAULT_GRID = 24
+DEFAULT_GRID = 12
 
 
 class Reconstruction:
@@ -408,7 +408,7 @@ class Reconstruction:
     def save(self, directory, formats="all", **options) -> list:
         """Write the outputs ("all", or names such as ``["npz", "ply", "colmap"]``: see
         ``d4rt.io.exports.FORMATS``) into ``directory``, atomically; ``options`` (resolution, intrinsics,
-        min_confidence, point_stride, track_grid, track_frame, timestamps, fps, progress) are those of
+        min_confidence, point_stride, track_grid, track_frame, dense_resolution, timestamps, fps, progress) are those of
         ``d4rt.io.exports.compute_outputs``. Returns the paths written."""
         from d4rt.io.exports import save  # the I/O layer sits above this one
 
