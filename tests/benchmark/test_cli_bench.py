@@ -41,6 +41,7 @@ def test_quick_run_writes_every_field_with_sane_values(quick_result):
     parts = result["peak_memory_bytes_by_part"]
     assert sorted(parts) == sorted(["encoder", "decoder", "pose", "tracks", "dense"])
     assert result["peak_memory_bytes"] == max(parts.values()) and "peak memory" in stdout
+    assert isinstance(result["peak_memory_reset_per_part"], bool)
     counts = result["tracks_at_fps"]
     assert sorted(counts) == sorted(["60", "24", "10", "1"])
     by_fps = [counts[k] for k in ("60", "24", "10", "1")]

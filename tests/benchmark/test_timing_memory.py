@@ -22,5 +22,5 @@ def test_a_part_peak_is_its_own_not_the_process_peak():
     _, with_big = measure_peak(CPU, big)
     _, small = measure_peak(CPU, lambda: np.ones(1000).sum())
     assert with_big - small > 0.8 * size  # the earlier part's 200 MiB no longer counts
-    reset_peak_memory(CPU)
+    assert reset_peak_memory(CPU) is True
     assert peak_rss_bytes() < with_big - 0.8 * size

@@ -82,6 +82,12 @@ def test_dense_tracks_file_matches_ground_truth_and_is_left_out_of_all(clip, sav
             np.testing.assert_allclose(world[:, k], truth, atol=1e-4)
         np.testing.assert_allclose(apply_transform(_gt_poses(clip)[None], cam.astype(np.float64)), world, atol=1e-4)
         assert dense["visibility"][np.arange(len(src)), src[:, 0]].min() == 1  # visible at its own source
+    rec = clip.reconstruction()
+    with pytest.raises(UserError, match="dense_resolution"):
+        exports.compute_outputs(rec, ["tum", "dense-tracks"], dense_resolution="huge")
+    with pytest.raises(UserError, match="no encoder resolution"):  # the oracle has none
+        exports.compute_outputs(rec, ["dense-tracks"], dense_resolution="encoder")
+    assert rec.queries_decoded == 0  # both refused before any decoding
 
 
 def test_known_intrinsics_hold_at_another_output_resolution(clip, tmp_path):

@@ -74,9 +74,11 @@ def format_table(result: dict) -> str:
                      f"{row['tracks']:,} tracks, {row['wall_s']:.2f} s with the model")
     by_part = ", ".join(f"{part} {_mib(b)}" for part, b in result["peak_memory_bytes_by_part"].items())
     colmap = result["pose"].get("colmap_peak_rss_bytes")
+    scope = "per part" if result["peak_memory_reset_per_part"] else "the process's so far, not reset per part"
     lines += ["", f"peak memory {_mib(result['peak_memory_bytes'])}"
-              f"{' (CPU peak RSS)' if result['device'] == 'cpu' else ' (CUDA max allocated)'}: {by_part}"
-              + (f"; COLMAP {_mib(colmap)} (CPU peak RSS)" if colmap is not None else ""),
+              f"{' (CPU peak RSS)' if result['device'] == 'cpu' else ' (CUDA max allocated)'}, {scope}: {by_part}"
+              + (f"; process peak while COLMAP ran {_mib(colmap)} (CPU RSS, d4rt's model and clip included)"
+                 if colmap is not None else ""),
               f"total {result['total_s']:.1f} s"]
     return "\n".join(lines)
 

@@ -34,7 +34,7 @@ def run_benchmark(options: BenchOptions, log=print) -> dict:
         torch.set_num_threads(options.threads)
     device = torch.device(options.device)
     name = device_name(device)
-    reset_peak_memory(device)
+    cpu_peak_resets = reset_peak_memory(device)  # False: CPU peaks are the whole process's so far
     started = time.perf_counter()
 
     model = make_model(options)
@@ -55,13 +55,11 @@ def run_benchmark(options: BenchOptions, log=print) -> dict:
     log("encoder ...")
     encoder = part("encoder", lambda: bench_encoder(model, video, options, name))
 
-    def decode():
-        with options.autocast():
-            scene = model.encode(video)
-        return bench_decoder(model, scene, options)
-
+    with options.autocast():
+        scene = model.encode(video)
     log("decoder ...")
-    decoder = part("decoder", decode)
+    decoder = part("decoder", lambda: bench_decoder(model, scene, options))
+    del scene
     log("camera pose ...")
     pose = part("pose", lambda: bench_pose(model, video, options))
     if options.compare_colmap:
@@ -102,6 +100,7 @@ def run_benchmark(options: BenchOptions, log=print) -> dict:
         "peak_memory_bytes": max(peaks.values()),
         # everything else
         "peak_memory_bytes_by_part": peaks,
+        "peak_memory_reset_per_part": device.type == "cuda" or cpu_peak_resets,
         "peak_rss_bytes": max(rss_peaks.values()),
         "encoder_clips_per_s": encoder["clips_per_s"],
         "encoder_tflops_per_s": encoder["tflops_per_s"],

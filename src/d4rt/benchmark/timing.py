@@ -38,16 +38,18 @@ def best_time(fn: Callable[[], object], device: torch.device, repeats: int = 3, 
     return min(time_once(fn, device) for _ in range(max(1, repeats)))
 
 
-def reset_peak_memory(device: torch.device) -> None:
+def reset_peak_memory(device: torch.device) -> bool:
     """Start a new peak: CUDA's max-allocated counter, and on Linux the process's resident-set peak
-    (writing 5 to /proc/self/clear_refs resets VmHWM). Elsewhere the CPU peak is the process's."""
+    (writing 5 to /proc/self/clear_refs resets VmHWM to the current resident size). Returns whether
+    the CPU peak was reset; where it cannot be (not Linux, not allowed) it stays the whole process's."""
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats(device)
     try:
         with open("/proc/self/clear_refs", "w") as f:
             f.write("5")
+        return True
     except OSError:
-        pass  # not Linux, or not allowed: the peak stays the whole process's
+        return False
 
 
 def peak_rss_bytes() -> int:

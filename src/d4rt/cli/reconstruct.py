@@ -55,8 +55,8 @@ def register(subparsers) -> None:
     outputs.add_argument("--track-frame", type=int, default=0, metavar="F",
                          help="frame the tracked grid starts from (default: 0)")
     outputs.add_argument("--dense-resolution", default=None, metavar="WxH",
-                         help="grid of the dense-tracks output: 'encoder' or WIDTHxHEIGHT (default, or 'original': the "
-                              "depth maps' size, the input's unless --resolution says otherwise)")
+                         help="grid of the dense-tracks output: 'encoder' (the default), 'original' (the input's size: "
+                              "T*H*W tracks, costly) or WIDTHxHEIGHT")
     outputs.add_argument("--outputs", default="all",
                          help=f"comma-separated outputs to write: {', '.join(FORMATS)} (default: all, which leaves "
                               f"out the costly {', '.join(ON_REQUEST)})")
@@ -104,14 +104,13 @@ class EncodeProgress:
     window is encoded (windows are encoded again when a later recipe comes back to them)."""
 
     def __init__(self, source, bar):
-        self.source, self.bar, self._last = source, bar, None
+        self.source, self.bar = source, bar
         self.num_frames, self.max_window, self.encoder_size = source.num_frames, source.max_window, source.encoder_size
 
     def window(self, start: int, stop: int):
+        before = self.source.encodes
         scene = self.source.window(start, stop)
-        if scene is not self._last:
-            self._last = scene
-            self.bar.update()
+        self.bar.update(self.source.encodes - before)
         return scene
 
     def keeping(self, count: int):
@@ -129,7 +128,8 @@ def run(args) -> int:
     # Every option is checked before any work, so a bad one costs nothing and writes nothing.
     intrinsics = parse_intrinsics(args.intrinsics) if args.intrinsics else None
     resolution = parse_resolution(args.resolution)
-    dense_resolution = parse_resolution(args.dense_resolution or "original", "--dense-resolution")
+    dense_resolution = (args.dense_resolution if args.dense_resolution in (None, "original")
+                        else parse_resolution(args.dense_resolution, "--dense-resolution"))
     formats = parse_formats(args.outputs)
     out_dir = check_output_dir(args.out)
     selection = FrameRange(args.start, args.end, args.stride, args.max_frames)

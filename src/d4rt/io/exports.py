@@ -179,8 +179,10 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     and depth pixels below it are dropped (None: keep every positive confidence). point_stride: point
     cloud from every n-th pixel of the input (default: the input-to-output size ratio, so the cloud is
     about as dense as the depth maps). track_grid: tracks start from a track_grid x track_grid grid of
-    pixels of frame ``track_frame`` (0: no tracks). dense_resolution: (H, W) of the dense-tracking grid
-    (None: the depth maps' resolution; "encoder" works too). timestamps: (T,) seconds (default: frame numbers);
+    pixels of frame ``track_frame`` (0: no tracks). dense_resolution: the dense-tracking grid, (H, W),
+    "encoder" or "original" (the input's size); None: the encoder's input size where the model has one
+    (the input's size for an oracle): every pixel of a full-size video is rarely what is wanted, and
+    costs T * H * W tracks. timestamps: (T,) seconds (default: frame numbers);
     fps: for the videos and the viewer (default: from the timestamps, else 10).
     """
     t, h, w = rec.video.shape[:3]
@@ -199,6 +201,8 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     out = ReconstructionOutputs(rec.video, stamps, float(fps or (DEFAULT_FPS if timestamps is None else _rate(stamps))),
                                 min_confidence)
     out_h, out_w = rec.output_size(resolution)
+    if "dense" in needs:  # checked before any decoding
+        dense_size = _dense_size(rec, dense_resolution)
     if "depth" in needs:
         needs.add("cameras")  # the depth maps' intrinsics
     stages = [s for s in ("cameras", "depth", "points", "tracks", "dense") if s in needs]
@@ -230,8 +234,16 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
                 out.tracks, out.track_uv = np.zeros((0, t, 3)), np.zeros((0, t, 2))
                 out.track_visibility, out.track_confidence = np.zeros((0, t)), np.zeros((0, t))
         elif stage == "dense":
-            out.dense = _dense_arrays(rec.dense_tracks(dense_resolution or (out_h, out_w)), out.cam_to_world)
+            out.dense = _dense_arrays(rec.dense_tracks(dense_size), out.cam_to_world)
     return out
+
+
+def _dense_size(rec, dense_resolution) -> tuple[int, int]:
+    if dense_resolution is None:
+        return rec.output_size("encoder" if rec.source.encoder_size is not None else None)
+    if isinstance(dense_resolution, str) and dense_resolution not in ("encoder", "original"):
+        raise UserError(f"dense_resolution must be 'encoder', 'original' or (H, W), got {dense_resolution!r}")
+    return rec.output_size(None if dense_resolution == "original" else dense_resolution)
 
 
 def _dense_arrays(dense, cam_to_world: np.ndarray) -> dict:

@@ -359,7 +359,7 @@ class Reconstruction:
             return np.zeros(count, dtype=bool), np.zeros((count, 2)), np.zeros(count, dtype=np.int64)
         (a, b), (na, nb) = self.windows[win], self.windows[nxt]
         shared = np.arange(max(a, na), min(b, nb)) - a
-        vis = answers["visibility"][:, shared]
+        vis = np.nan_to_num(answers["visibility"][:, shared], nan=0.0)  # NaN must not win argmax
         best = np.argmax(vis, axis=1)
         rows = np.arange(count)
         k = shared[best]

@@ -2,8 +2,8 @@
 
 The recipes only need ``query(queries (N, 5)) -> dict`` over a run of frames. A *source* hands out
 one answerer per window of frames, so that long videos are processed window by window with memory
-bounded by the window: the model encodes each window when it is needed; the synthetic oracle answers
-any window directly.
+bounded by a few windows (dense tracking keeps them all for its run): the model encodes each window
+when it is needed; the synthetic oracle answers any window directly.
 """
 
 from __future__ import annotations
@@ -50,7 +50,8 @@ class AnswererSource:
 class ModelSource:
     """A D4RT model over a video: each window is encoded when it is first asked for. The most recently
     used ``cache_windows`` encoded windows are kept (2 by default: window alignment works on
-    consecutive pairs), so memory is bounded by a few windows, not the video."""
+    consecutive pairs), so memory is bounded by a few windows, not the video; inside :meth:`keeping`
+    (dense tracking) more are kept. ``encodes`` counts the windows encoded so far."""
 
     def __init__(self, model, video, max_window: int | None = None, cache_windows: int = 2):
         self.model, self.video = model, video
@@ -60,6 +61,7 @@ class ModelSource:
         self.encoder_size = (size, size)
         self.cache_windows = max(1, cache_windows)
         self._cache: dict[tuple[int, int], Answerer] = {}  # insertion order = recency
+        self.encodes = 0
 
     def window(self, start: int, stop: int) -> Answerer:
         key = (start, stop)
@@ -69,6 +71,7 @@ class ModelSource:
         while len(self._cache) >= self.cache_windows:
             self._cache.pop(next(iter(self._cache)))  # release the least recently used window first
         self._cache[key] = self.model.encode(self.video[start:stop])
+        self.encodes += 1
         return self._cache[key]
 
     @contextmanager
