@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import torch
 
 from d4rt.errors import UserError
 from d4rt.geometry.camera import project, unproject_depth
@@ -155,6 +156,33 @@ def test_dense_tracking_spans_windows_and_matches_the_whole_clip():
     rows = np.arange(len(coarse.sources))
     uv = coarse.tracks.uv[rows, coarse.sources[:, 0]]
     assert coarse.coverage == 1.0 and np.allclose(uv, (coarse.sources[:, 1:] + 0.5) / np.array([16, 12]))
+
+
+def test_a_track_that_cannot_be_handed_back_keeps_its_own_windows_frames():
+    """Hidden in every frame two windows share, a track cannot be carried into the earlier window: the
+    frames its own window shares with it keep that window's answers, the frames before stay NaN."""
+    clip = render_clip(8, 12, 24, 32, environment="room", num_objects=3, camera_motion="orbit")
+
+    class HiddenInOverlaps:
+        num_frames = clip.num_frames
+
+        def __init__(self, shared):
+            self.shared = shared
+
+        def query(self, q):
+            out = dict(clip.oracle.query(q))
+            hidden = torch.isin(torch.as_tensor(q[:, 3]).round().long(), self.shared)
+            out["visibility"] = torch.where(hidden, torch.zeros_like(out["visibility"]), out["visibility"])
+            return out
+
+    windows = plan_windows(12, 6, 2)
+    (a0, b0), (a1, b1) = windows[0], windows[1]
+    rec = Reconstruction(HiddenInOverlaps(torch.arange(a1, b0)), clip.rgb, window=6, overlap=2)
+    assert rec.windows == windows
+    tr = rec.tracks([[b0, 10, 10], [b0, 20, 5]])  # both start in window 1, past the overlap
+    whole = clip.reconstruction().tracks([[b0, 10, 10], [b0, 20, 5]])
+    assert np.isnan(tr.points[:, :a1]).all() and (tr.visibility[:, :a1] == 0).all()
+    np.testing.assert_allclose(tr.points[:, a1:b1], whole.points[:, a1:b1], atol=1e-9)
 
 
 def test_windows_plan():

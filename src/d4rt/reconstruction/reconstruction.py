@@ -284,7 +284,8 @@ class Reconstruction:
         frame="world": in the camera of ``reference_frame`` (t_cam fixed, t_tgt = k).
         With several windows a track is carried into the next (previous) window from the shared frame
         where it is most visible; if it is hidden in every shared frame it cannot be carried, and its
-        positions beyond are NaN with visibility 0.
+        positions beyond are NaN with visibility 0 (the frames its own window shares with the previous
+        one keep that window's answers).
         """
         if frame not in ("camera", "world"):
             raise UserError(f"frame must be 'camera' or 'world', got {frame!r}")
@@ -332,8 +333,15 @@ class Reconstruction:
                     p = self.window_to_world[win].apply(torch.from_numpy(p)).numpy()
                     p = p @ world_to_ref[:3, :3].T + world_to_ref[:3, 3]
             owned = np.array(self._owned(win)) - a
-            for key, value in (("points", p), ("uv", ans["uv"]), ("visibility", ans["visibility"]),
-                               ("confidence", ans["confidence"])):
+            values = (("points", p), ("uv", ans["uv"]), ("visibility", ans["visibility"]),
+                      ("confidence", ans["confidence"]))
+            if direction == 1 and owned[0] > 0:
+                # The home window's answers for the frames it shares with earlier windows: kept where the
+                # backward hand-off fails (those windows then never see the track), overwritten where not.
+                home_rows = np.nonzero(home[idx] == win)[0]
+                for key, value in values:
+                    out[key][idx[home_rows, None], np.arange(owned[0]) + a] = value[home_rows, :owned[0]]
+            for key, value in values:
                 out[key][idx[:, None], owned + a] = value[:, owned]
             if direction == 1:
                 forward[:] = False
