@@ -21,6 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from d4rt.errors import UserError
+from d4rt.geometry.transforms import apply_transform
 from d4rt.geometry.view import View
 from d4rt.io.colmap import write_colmap
 from d4rt.io.depth_png import write_depth_pngs
@@ -250,7 +251,7 @@ def _dense_arrays(dense, cam_to_world: np.ndarray) -> dict:
     """The contents of dense_tracks.npz (see docs/outputs.md): tracks in camera k at frame k and in the
     world (camera 0), float32."""
     cam = dense.tracks.points
-    world = np.einsum("kij,nkj->nki", cam_to_world[:, :3, :3], cam) + cam_to_world[None, :, :3, 3]
+    world = apply_transform(cam_to_world[None], cam)
     return {"sources": dense.sources.astype(np.int32), "points_camera": cam.astype(np.float32),
             "points_world": world.astype(np.float32), "uv": dense.tracks.uv.astype(np.float32),
             "visibility": dense.tracks.visibility.astype(np.float32),

@@ -83,9 +83,11 @@ class Reconstruction:
             parts.append({k: out[k].detach().cpu().double().numpy() for k in KEYS})
         return {k: np.concatenate([p[k] for p in parts]) for k in KEYS}
 
-    def _owner(self, frame: int) -> int:
-        """The first window containing the frame."""
-        return next(w for w, (a, b) in enumerate(self.windows) if a <= frame < b)
+    def _owners(self, frames) -> np.ndarray:
+        """The first window containing each frame: (N,) int64. Windows are ordered and overlap, so it is
+        the first one that stops after the frame."""
+        stops = np.array([b for _, b in self.windows])
+        return np.searchsorted(stops, np.asarray(frames), side="right").astype(np.int64)
 
     def _owned(self, w: int) -> range:
         start, stop = self.windows[w]
@@ -234,7 +236,7 @@ class Reconstruction:
             world_to_ref = invert_rigid(self._global_pose(reference_frame))
         pts, conf, fr, pix = [], [], [], []
         for win in range(len(self.windows)):
-            mine = np.array([f for f in frame_list if self._owner(int(f)) == win], dtype=np.int64)
+            mine = frame_list[self._owners(frame_list) == win].astype(np.int64)
             if not len(mine):
                 continue
             cam = reference_frame if single else self.windows[win][0]
@@ -296,7 +298,7 @@ class Reconstruction:
                "confidence": np.zeros((n, t))}
         uv0 = np.stack([(src[:, 1] + 0.5) / self.width, (src[:, 2] + 0.5) / self.height], 1)
         t0 = src[:, 0].astype(np.int64)
-        home = np.array([self._owner(int(f)) for f in t0], dtype=np.int64)
+        home = self._owners(t0)
         if frame == "world" and len(self.windows) > 1:
             world_to_ref = invert_rigid(self._global_pose(reference_frame))
         # Every track is decoded once in each window it reaches: its home window, then the windows after
@@ -379,27 +381,20 @@ class Reconstruction:
                      visibility_threshold: float = 0.5) -> DenseTracks:
         """Camera-frame tracks of every pixel of every frame with the occupancy grid (Alg. 1).
 
-        resolution: (H, W) of the grid (default: the input video's). A video of several windows is
-        tracked as a whole: each batch of sources is decoded as full-video tracks carried from window to
-        window (:meth:`tracks`), so the grid spans every frame; the encoded windows are kept for the
+        resolution: (H, W) of the grid (default: the input video's). Each batch of sources is decoded as
+        full-video camera-frame tracks (:meth:`tracks`); a video of several windows is tracked as a
+        whole, tracks carried from window to window, so the grid spans every frame; the encoded windows are kept for the
         whole run (memory grows with the number of windows) rather than re-encoded for every batch.
         ``num_queries`` counts the tracking queries actually decoded (window alignment, shared with the
         other recipes, is not counted).
         """
         h, w = self.output_size(resolution)
         t = self.num_frames
-        frames = np.arange(t)
-        single = len(self.windows) == 1
-        if not single:
+        if len(self.windows) > 1:
             _ = self.window_to_world  # align the windows first, so that the count below is tracking alone
         start = self.queries_decoded
 
-        def ask_one_window(src: np.ndarray) -> dict:
-            uv = np.stack([(src[:, 1] + 0.5) / w, (src[:, 2] + 0.5) / h], 1)
-            out = self._ask(0, _track_queries(uv, src[:, 0], frames, frames))
-            return {k: v.reshape(len(src), t, *v.shape[1:]) for k, v in out.items()}
-
-        def ask_across_windows(src: np.ndarray) -> dict:
+        def ask(src: np.ndarray) -> dict:
             # Grid cells to input-video pixels (OpenCV centres): the same normalised (u, v).
             pixels = np.stack([src[:, 0], (src[:, 1] + 0.5) * self.width / w - 0.5,
                                (src[:, 2] + 0.5) * self.height / h - 0.5], 1).astype(np.float64)
@@ -407,8 +402,7 @@ class Reconstruction:
             return {"points": tr.points, "uv": tr.uv, "visibility": tr.visibility, "confidence": tr.confidence}
 
         with _keeping_windows(self.source, len(self.windows)):
-            res = occupancy_tracking(ask_one_window if single else ask_across_windows, t, h, w, batch_size,
-                                     visibility_threshold, progress=bool(self.progress))
+            res = occupancy_tracking(ask, t, h, w, batch_size, visibility_threshold, progress=bool(self.progress))
         tracks = Tracks(res["points"], res["visibility"], res["confidence"], res["uv"], "camera", 0)
         return DenseTracks(tracks, res["sources"], self.queries_decoded - start, t * t * h * w,
                            float(res["grid"].mean()), (h, w))
