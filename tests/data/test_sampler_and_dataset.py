@@ -154,3 +154,64 @@ def test_datasets_render_on_the_fly_or_read_files_deterministically(tmp_path, ro
         assert s["queries"].shape == (64, 5) and s["valid"].any()
     with pytest.raises(UserError, match="no .npz clips"):
         ClipQueryDataset(DatasetConfig(source="files", directory=str(tmp_path / "empty")))
+
+
+def _crop_geometry(policy: str, jitter: float = 0.05, n: int = 3000):
+    """Principal-point offsets (fraction of the view, from its centre) and horizontal FOVs (degrees) of
+    the views ``sample_view`` draws from 96x96 frames whose camera has a 60-degree FOV, centred."""
+    rng = np.random.default_rng(3)
+    cfg = AugmentConfig(crop_policy=policy, center_jitter=jitter)
+    source = np.array([[[48 / np.tan(np.radians(30)), 0, 47.5], [0, 48 / np.tan(np.radians(30)), 47.5],
+                        [0, 0, 1]]] * 8)
+    offsets, fovs, bounds = [], [], []
+    for _ in range(n):
+        view = sample_view(rng, 8, (96, 96), 8, (64, 64), cfg)
+        k = view.intrinsics(source)[0]
+        offsets.append(((k[0, 2] + 0.5) / 64 - 0.5, (k[1, 2] + 0.5) / 64 - 0.5))
+        fovs.append(np.degrees(2 * np.arctan(32 / k[0, 0])))
+        # The crop's centre may sit jitter * 96 pixels (+ half a pixel of rounding) off the frame's
+        # centre: that many source pixels, as a fraction of the crop's width / height.
+        _, _, w, h = view.crop
+        bounds.append(((jitter * 96 + 0.5) / w, (jitter * 96 + 0.5) / h))
+    return np.abs(np.array(offsets)), np.array(fovs), np.array(bounds)
+
+
+def test_crop_policies_keep_the_principal_point_and_field_of_view_in_their_ranges():
+    # The paper's crops: anywhere in the frame, so the principal point wanders far from the centre.
+    offsets, fovs, _ = _crop_geometry("paper")
+    assert np.percentile(offsets, 90) > 0.25
+    # Centred crops: the principal point within the configured jitter of the view's centre; crop sizes
+    # (hence FOVs) are drawn as in the paper.
+    offsets_c, fovs_c, bounds = _crop_geometry("centered")
+    assert (offsets_c <= bounds + 1e-9).all()
+    assert np.percentile(offsets_c, 90) < 0.1 and np.percentile(offsets, 90) > 2.5 * np.percentile(offsets_c, 90)
+    # A crop narrows the FOV: at least to 2 atan(sqrt(0.05 * 0.5) tan 30°) = 10.4° (the smallest zoom-in
+    # at the narrowest aspect), never wider than the camera's. Both policies draw the same sizes.
+    narrowest = np.degrees(2 * np.arctan(np.sqrt(0.05 * 0.5) * np.tan(np.radians(30))))
+    for f in (fovs, fovs_c):
+        assert narrowest - 0.5 <= f.min() and f.max() <= 60 + 1e-6 and 35 < np.median(f) < 55
+    assert abs(np.median(fovs) - np.median(fovs_c)) < 1.5
+    # No crop: the camera's own principal point and FOV, every time.
+    offsets_n, fovs_n, _ = _crop_geometry("none", n=50)
+    assert offsets_n.max() < 1e-9 and np.allclose(fovs_n, 60)
+    with pytest.raises(UserError, match="crop_policy"):
+        AugmentConfig(crop_policy="middle").validate()
+    with pytest.raises(UserError, match="center_jitter"):
+        AugmentConfig(center_jitter=0.7).validate()
+
+
+def test_variable_clip_lengths_and_depth_queries(tmp_path):
+    cfg = DatasetConfig(num_clips=40, frames=4, frame_choices=(2, 4, 6), size=(32, 32), render_pixels=32 * 32,
+                        sampler=QuerySamplerConfig(num_queries=200, depth_fraction=0.5))
+    ds = ClipQueryDataset(cfg)
+    lengths = {ds[i]["video"].shape[0] for i in range(12)}
+    assert lengths == {2, 4, 6} and cfg.max_frames == 6
+    q = ds[0]["queries"]
+    depth = (q[:, 2] == q[:, 3]) & (q[:, 3] == q[:, 4])
+    assert 0.35 < depth.float().mean() < 0.7  # 0.5 forced + the uniform draws' own share
+    from d4rt.training import TrainConfig
+
+    config = TrainConfig.from_dict({"data": {"batch_size": 2, "dataset": {"frames": 8, "frame_choices": [8, 16],
+                                                                          "size": [64, 64]}}})
+    with pytest.raises(UserError, match="frame_choices needs data.batch_size 1"):
+        config.validate()

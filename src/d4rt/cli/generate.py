@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from d4rt.errors import UserError
@@ -27,6 +29,11 @@ def register(subparsers) -> None:
     p.add_argument("--environment", choices=["room", "outdoor"], default=None, help="default: random per clip")
     p.add_argument("--camera-motion", choices=CAMERA_MOTIONS, default=None, help="default: random per clip")
     p.add_argument("--num-objects", type=int, default=None, help="default: 3 to 8 per clip")
+    p.add_argument("--fov", type=float, nargs=2, metavar=("LOW", "HIGH"), default=None,
+                   help="field-of-view range in degrees across the longer side (default 35 90)")
+    p.add_argument("--aspect", type=float, nargs=2, metavar=("LOW", "HIGH"), default=None,
+                   help="draw each clip's width / height log-uniformly from this range, keeping about "
+                        "height x width pixels (default: every clip height x width)")
     p.add_argument("--time-stride", type=int, default=1, help="frame k shows time k * stride / fps")
     p.add_argument("--aa-samples", type=int, default=2, help="n x n supersampling of edge pixels (1 = off)")
     p.add_argument("--device", default="cpu", help="torch device to ray-cast on")
@@ -45,6 +52,16 @@ def _render_one(job: dict) -> str:
     return path
 
 
+def clip_size(seed: int, height: int, width: int, aspect: tuple[float, float] | None) -> tuple[int, int]:
+    """(height, width) of clip ``seed``: as given, or about height x width pixels at a width / height drawn
+    log-uniformly from ``aspect`` (a function of the seed, so the same arguments give the same files)."""
+    if aspect is None:
+        return height, width
+    ratio = math.exp(np.random.default_rng([seed, 0xA5]).uniform(math.log(aspect[0]), math.log(aspect[1])))
+    pixels = height * width
+    return max(8, int(round(math.sqrt(pixels / ratio)))), max(8, int(round(math.sqrt(pixels * ratio))))
+
+
 def run(args) -> int:
     if args.num_clips < 1:
         raise UserError(f"--num-clips must be at least 1, got {args.num_clips}")
@@ -54,6 +71,8 @@ def run(args) -> int:
         raise UserError(f"--height and --width must be between 8 and 4096, got {args.height}x{args.width}")
     if args.seed < 0:
         raise UserError(f"--seed must be non-negative, got {args.seed}")
+    if args.aspect is not None and not 0 < args.aspect[0] <= args.aspect[1]:
+        raise UserError(f"--aspect must be a positive LOW HIGH range, got {args.aspect[0]} {args.aspect[1]}")
     if args.workers < 1:
         raise UserError(f"--workers must be at least 1, got {args.workers}")
     out = Path(args.out)
@@ -61,18 +80,22 @@ def run(args) -> int:
         raise UserError(f"--out {out} exists and is not a directory")
     out.mkdir(parents=True, exist_ok=True)
     options = {k: v for k, v in {"environment": args.environment, "camera_motion": args.camera_motion,
-                                 "num_objects": args.num_objects, "time_stride": args.time_stride}.items()
+                                 "num_objects": args.num_objects, "time_stride": args.time_stride,
+                                 "fov_degrees": tuple(args.fov) if args.fov else None}.items()
                if v is not None}
     from d4rt.synthetic.sampling import SceneOptions
 
     SceneOptions(**options).validate()  # fail before any work
     width = max(5, len(str(args.num_clips - 1)))
     threads = 1 if args.workers > 1 else max(1, os.cpu_count() or 1)
-    jobs = [dict(seed=args.seed + i, frames=args.frames, height=args.height, width=args.width, device=args.device,
+    sizes = [clip_size(args.seed + i, args.height, args.width, args.aspect) for i in range(args.num_clips)]
+    jobs = [dict(seed=args.seed + i, frames=args.frames, height=h, width=w, device=args.device,
                  aa_samples=args.aa_samples, threads=threads, path=str(out / f"clip_{i:0{width}d}.npz"), **options)
-            for i in range(args.num_clips)]
+            for i, (h, w) in enumerate(sizes)]
     manifest = {"seeds": [j["seed"] for j in jobs], "files": [Path(j["path"]).name for j in jobs],
-                "frames": args.frames, "height": args.height, "width": args.width, "scene_options": options,
+                "frames": args.frames, "height": args.height, "width": args.width,
+                "aspect": list(args.aspect) if args.aspect else None, "sizes": [list(s) for s in sizes],
+                "scene_options": {k: list(v) if isinstance(v, tuple) else v for k, v in options.items()},
                 "aa_samples": args.aa_samples}
     bar = tqdm(total=len(jobs), desc="generate", unit="clip")
     if args.workers == 1:

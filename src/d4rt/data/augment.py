@@ -19,6 +19,9 @@ from d4rt.errors import UserError
 from d4rt.geometry.view import View
 
 
+CROP_POLICIES = ("paper", "centered", "none")
+
+
 @dataclass
 class AugmentConfig:
     """Augmentation knobs. Paper: colour drop p 0.2, blur p 0.4, crop 0.3-1.0 of the frame with a
@@ -30,6 +33,12 @@ class AugmentConfig:
     zoom_prob: float = 0.05
     zoom_scale: tuple[float, float] = (0.05, 0.3)  # a zoom-in is a crop this small, upsampled
     max_stride: int = 3
+    # Where crops sit. "paper": anywhere in the frame (the principal point of the crop can land far
+    # off-centre); "centered": the crop's centre within ``center_jitter`` (a fraction of the frame's
+    # width / height) of the frame's centre, so the principal point stays near the image centre as in
+    # ordinary video; "none": the whole frame (no crop, no zoom-in), only resized.
+    crop_policy: str = "paper"
+    center_jitter: float = 0.05
     jitter_prob: float = 0.8
     brightness: float = 0.3
     contrast: float = 0.3
@@ -45,6 +54,10 @@ class AugmentConfig:
             raise UserError(f"crop_scale must satisfy 0 < low <= high <= 1, got {self.crop_scale}")
         if not 0 < self.crop_aspect[0] <= self.crop_aspect[1]:
             raise UserError(f"crop_aspect must be a positive (low, high) range, got {self.crop_aspect}")
+        if self.crop_policy not in CROP_POLICIES:
+            raise UserError(f"crop_policy must be one of {', '.join(CROP_POLICIES)}, got {self.crop_policy!r}")
+        if not 0 <= self.center_jitter <= 0.5:
+            raise UserError(f"center_jitter must be in [0, 0.5], got {self.center_jitter}")
         if self.max_stride < 1:
             raise UserError(f"max_stride must be >= 1, got {self.max_stride}")
 
@@ -67,6 +80,8 @@ def sample_view(rng: np.random.Generator, source_frames: int, source_size: tuple
         stride = sample_stride(rng, source_frames, frames, config.max_stride)
     start = int(rng.integers(0, source_frames - stride * (frames - 1)))
     frame_ids = tuple(start + stride * k for k in range(frames))
+    if config.crop_policy == "none":
+        return View(source_size, (0, 0, ws, hs), size, frame_ids)
     scale = config.zoom_scale if rng.uniform() < config.zoom_prob else config.crop_scale
     area = hs * ws
     for _ in range(10):  # like torchvision's RandomResizedCrop: retry, then fall back to the full frame
@@ -75,10 +90,21 @@ def sample_view(rng: np.random.Generator, source_frames: int, source_size: tuple
         w = int(round(math.sqrt(target * aspect)))
         h = int(round(math.sqrt(target / aspect)))
         if 1 <= w <= ws and 1 <= h <= hs:
-            x0 = int(rng.integers(0, ws - w + 1))
-            y0 = int(rng.integers(0, hs - h + 1))
+            if config.crop_policy == "centered":
+                x0 = _centered_start(rng, ws, w, config.center_jitter)
+                y0 = _centered_start(rng, hs, h, config.center_jitter)
+            else:
+                x0 = int(rng.integers(0, ws - w + 1))
+                y0 = int(rng.integers(0, hs - h + 1))
             return View(source_size, (x0, y0, w, h), size, frame_ids)
     return View(source_size, (0, 0, ws, hs), size, frame_ids)
+
+
+def _centered_start(rng: np.random.Generator, full: int, length: int, jitter: float) -> int:
+    """First pixel of a ``length``-pixel crop whose centre lies within ``jitter * full`` pixels of the
+    frame's centre (as far as the frame allows)."""
+    offset = rng.uniform(-jitter, jitter) * full
+    return int(np.clip(round((full - length) / 2 + offset), 0, full - length))
 
 
 def photometric_augment(video: torch.Tensor, rng: np.random.Generator, config: AugmentConfig) -> torch.Tensor:

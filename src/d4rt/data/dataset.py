@@ -30,6 +30,10 @@ class DatasetConfig:
     """Where clips come from and what a sample looks like.
 
     frames, size: the sample's clip length and (H, W) (the model's encoder input, usually square).
+    frame_choices: when given, each sample's clip length is drawn uniformly from it instead of
+    ``frames`` (repeat a value to weight it): short clips are cheap, and the occasional long one keeps
+    the time embeddings of long windows trained. Samples of different lengths cannot be stacked, so
+    this needs one clip per batch.
     render_pixels: on-the-fly clips are rendered at this many pixels per frame (aspect ratio drawn
     log-uniformly from ``render_aspect``) before cropping. num_clips: dataset length for rendering.
     """
@@ -39,6 +43,7 @@ class DatasetConfig:
     num_clips: int = 10000
     seed: int = 0
     frames: int = 16
+    frame_choices: tuple[int, ...] = ()
     size: tuple[int, int] = (128, 128)
     render_pixels: int = 144 * 144
     render_aspect: tuple[float, float] = (0.5, 2.0)
@@ -52,10 +57,17 @@ class DatasetConfig:
         if isinstance(self.sampler, dict):
             self.sampler = QuerySamplerConfig(**self.sampler)
         self.size = tuple(self.size)
+        self.frame_choices = tuple(int(f) for f in self.frame_choices)
         if self.source not in ("render", "files"):
             raise UserError(f"dataset source must be 'render' or 'files', got {self.source!r}")
-        if self.frames < 1 or min(self.size) < 1:
-            raise UserError(f"frames and size must be positive, got {self.frames}, {self.size}")
+        if min((self.frames, *self.frame_choices)) < 1 or min(self.size) < 1:
+            raise UserError(f"frames, frame_choices and size must be positive, got {self.frames}, "
+                            f"{self.frame_choices}, {self.size}")
+
+    @property
+    def max_frames(self) -> int:
+        """The longest clip a sample can have."""
+        return max(self.frame_choices) if self.frame_choices else self.frames
 
 
 def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampler: QuerySampler,
@@ -125,18 +137,20 @@ class ClipQueryDataset(torch.utils.data.Dataset):
             raise IndexError(f"index {index} out of range for {len(self)} samples")
         cfg = self.config
         rng = np.random.default_rng([cfg.seed, self.epoch, index])
+        # Drawn only when there is a choice, so fixed-length runs keep their exact sample stream.
+        frames = int(cfg.frame_choices[rng.integers(len(cfg.frame_choices))]) if cfg.frame_choices else cfg.frames
         if self.files:
             clip = load_clip(self.files[index])
             stride = None
         else:
-            stride = sample_stride(rng, cfg.frames * cfg.augment.max_stride, cfg.frames, cfg.augment.max_stride) \
+            stride = sample_stride(rng, frames * cfg.augment.max_stride, frames, cfg.augment.max_stride) \
                 if cfg.augment.enabled else 1
             aspect = math.exp(rng.uniform(*np.log(cfg.render_aspect)))
             height = max(8, int(round(math.sqrt(cfg.render_pixels / aspect))))
             width = max(8, int(round(math.sqrt(cfg.render_pixels * aspect))))
             clip_seed = int(rng.integers(0, 2**31 - 1))
-            clip = render_clip(clip_seed, cfg.frames, height, width, time_stride=stride, **cfg.scene_options)
+            clip = render_clip(clip_seed, frames, height, width, time_stride=stride, **cfg.scene_options)
             stride = 1  # the stride is already in the rendered frame times
-        view = sample_view(rng, clip.num_frames, (clip.height, clip.width), cfg.frames, cfg.size, cfg.augment,
+        view = sample_view(rng, clip.num_frames, (clip.height, clip.width), frames, cfg.size, cfg.augment,
                            stride=stride)
         return make_training_sample(clip, view, rng, self.sampler, cfg.augment)

@@ -31,6 +31,9 @@ class QuerySamplerConfig:
     num_queries: int = 2048
     boundary_fraction: float = 0.3
     tgt_equals_cam_prob: float = 0.4
+    # Share of queries made depth queries (t_src = t_tgt = t_cam), drawn before the rule above; 0 is the
+    # paper's sampler, where they are only the ~1/T^2 that the uniform draws give.
+    depth_fraction: float = 0.0
     boundary_radius: int = 2  # "within a few pixels" (not in paper): pixels
     depth_edge_threshold: float = 0.05  # Sobel of log-depth per pixel (about a 10% depth step)
     motion_edge_threshold: float = 0.01  # Sobel of scene flow / depth per pixel
@@ -39,7 +42,7 @@ class QuerySamplerConfig:
     def validate(self) -> None:
         if self.num_queries < 1:
             raise UserError(f"num_queries must be >= 1, got {self.num_queries}")
-        for name in ("boundary_fraction", "tgt_equals_cam_prob"):
+        for name in ("boundary_fraction", "tgt_equals_cam_prob", "depth_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise UserError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         if self.boundary_radius < 0:
@@ -140,6 +143,10 @@ class QuerySampler:
         t_cam = rng.integers(0, t_view, n)
         forced = rng.uniform(size=n) < cfg.tgt_equals_cam_prob
         t_cam = np.where(forced, t_tgt, t_cam)
+        if cfg.depth_fraction > 0:  # drawn only when asked for: the paper's stream stays as it was
+            depth = rng.uniform(size=n) < cfg.depth_fraction
+            t_tgt = np.where(depth, t_src, t_tgt)
+            t_cam = np.where(depth, t_src, t_cam)
 
         n_boundary = int(round(cfg.boundary_fraction * n))
         from_boundary = np.zeros(n, dtype=bool)

@@ -72,7 +72,8 @@ class DataSpec:
 
     @property
     def frames(self) -> int:
-        return (self.tracks or self.dataset).frames
+        """The longest training clip."""
+        return self.tracks.frames if self.tracks else self.dataset.max_frames
 
     @property
     def size(self) -> tuple[int, int]:
@@ -196,6 +197,9 @@ class TrainConfig:
             data.dataset.augment.validate()
         data.dataset.sampler.validate()  # validation samples its queries with it
         source = "data.tracks" if data.tracks is not None else "data.dataset"
+        if data.tracks is None and data.dataset.frame_choices and data.batch_size != 1:
+            raise UserError(f"data.dataset.frame_choices needs data.batch_size 1 (clips of different lengths "
+                            f"cannot be stacked), got {data.batch_size}; use run.grad_accum for larger batches")
         checked = [(source, data.frames)] + ([("validation", val.frames)] if val.every else [])
         for name, frames in checked:
             if frames > model.max_frames:
