@@ -1,10 +1,11 @@
-"""Kill and resume: a run stopped with SIGKILL (or SIGTERM, which checkpoints the current step) and
-resumed ends bitwise equal to an uninterrupted run; a checkpoint half-written at the kill is never
-picked up."""
+"""Kill and resume: a run stopped with SIGKILL (or SIGTERM, which checkpoints the current step, also when
+sent to the whole process group with loader workers) and resumed ends bitwise equal to an uninterrupted
+run; a checkpoint half-written at the kill is never picked up."""
 
 from __future__ import annotations
 
 import json
+import os
 import re
 import signal
 import subprocess
@@ -12,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from safetensors.torch import load_file
 
 from d4rt.training import latest_checkpoint
@@ -92,6 +94,54 @@ def test_sigterm_writes_a_checkpoint_of_the_current_step_and_resume_loses_nothin
     assert same_tensors(reference / "model.safetensors", stopped / "model.safetensors")
     for name in ("model.safetensors", "optimizer.safetensors"):
         assert same_tensors(reference / "checkpoints/step-00000010" / name, stopped / "checkpoints/step-00000010" / name)
+
+
+@pytest.fixture(scope="module")
+def workers_reference(tmp_path_factory, clip_dir) -> tuple[Path, Path]:
+    """An 8-step config with two loader workers and two micro-batches per step (the stopping step still
+    needs a batch after the signal), and its uninterrupted run: (config, run directory)."""
+    tmp = tmp_path_factory.mktemp("workers")
+    run = {"max_steps": 8, "grad_accum": 2, "checkpoint_every": 100, "log_every": 1}
+    config = write_config(tmp / "run.yaml", fast_config(clip_dir, data={"workers": 2}, run=run))
+    done = run_d4rt("train", "--config", str(config), "--out", str(tmp / "reference"))
+    assert done.returncode == 0, done.stderr
+    return config, tmp / "reference"
+
+
+@pytest.mark.parametrize("name", ["SIGTERM", "SIGINT"])
+def test_a_signal_to_the_process_group_with_loader_workers_stops_cleanly_and_resume_loses_nothing(
+        tmp_path, workers_reference, name):
+    """`timeout`, a scheduler's preemption or Ctrl-C signal the whole process group, loader workers too:
+    they must not die under the run (which then failed with "DataLoader worker ... killed by signal"),
+    the run checkpoints the current step, exits 128 + the signal and leaves no worker behind."""
+    config, reference = workers_reference
+    sig = signal.Signals[name]
+    stopped = tmp_path / "stopped"
+    process = subprocess.Popen([sys.executable, "-m", "d4rt", "train", "--config", str(config), "--out", str(stopped)],
+                               env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               start_new_session=True)
+    metrics = stopped / "metrics.jsonl"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and process.poll() is None:
+        if metrics.is_file() and len(metrics.read_text().splitlines()) >= 3:
+            break
+        time.sleep(0.01)
+    os.killpg(process.pid, sig)  # the group: the run and its workers
+    out, err = process.communicate(timeout=120)
+    assert "killed by signal" not in err and "exited unexpectedly" not in err, err
+    assert process.returncode == 128 + sig, err
+    step = int(re.search(rf"stopped at step (\d+) by {name}", out).group(1))
+    assert 3 <= step < 8
+    assert latest_checkpoint(stopped / "checkpoints").name == f"step-{step:08d}"
+    with pytest.raises(ProcessLookupError):  # the workers were shut down before the run exited
+        os.killpg(process.pid, 0)
+
+    resumed = run_d4rt("train", "--config", str(config), "--out", str(stopped), "--resume")
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"at step {step}" in resumed.stdout + resumed.stderr
+    assert same_tensors(reference / "model.safetensors", stopped / "model.safetensors")
+    for file in ("model.safetensors", "optimizer.safetensors"):
+        assert same_tensors(reference / "checkpoints/step-00000008" / file, stopped / "checkpoints/step-00000008" / file)
 
 
 _KILL_MID_WRITE = """

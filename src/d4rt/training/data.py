@@ -17,6 +17,8 @@ from collections.abc import Iterator
 import numpy as np
 import torch
 
+from d4rt.training.stop import defer_stop_signals
+
 
 class EpochIndexedDataset(torch.utils.data.Dataset):
     """``dataset[(epoch, index)]``: the sample ``index`` of ``epoch`` (works in any worker process,
@@ -74,11 +76,20 @@ def seed_worker(worker_id: int) -> None:
     np.random.seed(seed)
 
 
+def init_worker(worker_id: int) -> None:
+    """A loader worker's set-up: leave SIGTERM / SIGINT to the main process first (a signal to the process
+    group must not kill the workers of a run that is finishing its step), then :func:`seed_worker`."""
+    defer_stop_signals()
+    seed_worker(worker_id)
+
+
 def training_loader(dataset: torch.utils.data.Dataset, stream: SampleStream, workers: int, seed: int, rank: int,
                     pin_memory: bool) -> torch.utils.data.DataLoader:
-    """A DataLoader over ``stream`` with ``workers`` processes; batches are dicts of stacked tensors."""
+    """A DataLoader over ``stream`` with ``workers`` processes; batches are dicts of stacked tensors.
+    Create its iterator (which starts the workers) where SIGTERM / SIGINT are handled (inside
+    :class:`d4rt.training.stop.StopRequest`), so that forked workers never hold the default handlers."""
     generator = torch.Generator().manual_seed(seed * 1_000_003 + rank)
     return torch.utils.data.DataLoader(
         EpochIndexedDataset(dataset), batch_sampler=stream, num_workers=workers, pin_memory=pin_memory,
-        worker_init_fn=seed_worker, generator=generator, persistent_workers=False,
+        worker_init_fn=init_worker, generator=generator, persistent_workers=False,
         prefetch_factor=2 if workers else None)

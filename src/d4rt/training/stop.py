@@ -4,6 +4,11 @@ The first signal only sets a flag: the trainer finishes the optimiser step it is
 at that step and returns, so ``d4rt train --resume`` continues exactly where it stopped (bitwise on the
 CPU, like any other checkpoint). A second signal stops at once, the default way. Only the process that
 receives the signal sees it; under torchrun the ranks agree on stopping (any rank's flag stops all).
+
+A signal to the whole process group (``timeout``, Ctrl-C in a shell, a scheduler's preemption) reaches
+the data-loading workers too. They leave stopping to the main process (:func:`defer_stop_signals`): killed,
+they would take the batches of the step being finished with them, and the run would end with an error
+instead of a checkpoint.
 """
 
 from __future__ import annotations
@@ -41,6 +46,32 @@ class StopRequest:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)
         self._previous.clear()
+
+
+def defer_stop_signals() -> None:
+    """In a data-loading worker (called by its ``worker_init_fn``): ignore the first SIGTERM / SIGINT.
+
+    The main process sees the same signal when it went to the process group; it finishes its step and
+    shuts the loader down, which ends the workers. A second signal acts the default way, as in the main
+    process (SIGTERM ends the worker; SIGINT raises KeyboardInterrupt, which ends torch's worker loop), so
+    a second signal to the group still stops everything at once and the loader's ``terminate()`` of a
+    worker that does not finish in time still works. Workers whose main process died end on their own
+    (torch's watchdog).
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return
+    received: list[int] = []
+
+    def handle(signum: int, frame) -> None:
+        if received:  # asked twice: stop now, the default way
+            for sig, default in ((signal.SIGTERM, signal.SIG_DFL), (signal.SIGINT, signal.default_int_handler)):
+                signal.signal(sig, default)
+            signal.raise_signal(signum)
+            return
+        received.append(signum)
+
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, handle)
 
 
 def exit_status(stopped_by: str) -> int:

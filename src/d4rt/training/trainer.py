@@ -179,8 +179,8 @@ class Trainer:
         dataset = data.build_dataset()
         stream = SampleStream(len(dataset), run.seed, next_sample, data.batch_size, run.grad_accum, context.rank,
                               context.world_size)
-        loader = iter(training_loader(dataset, stream, data.workers, run.seed, context.rank,
-                                      pin_memory=context.device.type == "cuda"))
+        loader = training_loader(dataset, stream, data.workers, run.seed, context.rank,
+                                 pin_memory=context.device.type == "cuda")
         validator = Validator(cfg.validation, cfg.loss, data.dataset.sampler) if cfg.validation.every else None
         logger = TrainLogger(self.out, context.is_main, run.max_steps, step, run.tensorboard, run.progress)
         if latest is not None and context.is_main:
@@ -190,12 +190,13 @@ class Trainer:
         last: dict[str, float] = {}
         window_start, window_steps = time.perf_counter(), 0
         with StopRequest() as stop:
+            batches = iter(loader)  # starts the workers under the stop handlers (they leave stopping to us)
             try:
                 while step < run.max_steps:
                     lr = learning_rate(step, cfg.optim, run.max_steps)
                     set_learning_rate(optimizer, lr)
                     for micro in range(run.grad_accum):
-                        batch = {k: v.to(context.device, non_blocking=True) for k, v in next(loader).items()}
+                        batch = {k: v.to(context.device, non_blocking=True) for k, v in next(batches).items()}
                         with gradient_sync(model, micro == run.grad_accum - 1):
                             with self.autocast:
                                 out = model(batch["video"], batch["queries"], batch["aspect_ratio"])
@@ -245,6 +246,7 @@ class Trainer:
                                        "--resume")
                         return TrainResult(self.out, step, last, stopped_by)
             finally:
+                del batches  # shuts the workers down now (they end on their own), not when this frame goes
                 logger.close()
         return TrainResult(self.out, step, last)
 
