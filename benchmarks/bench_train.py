@@ -1,12 +1,18 @@
 """Training throughput: the real trainer (data loading, forward, loss, backward, AdamW) for a few steps.
 
     python benchmarks/bench_train.py                                   # tiny on CPU
+    python benchmarks/bench_train.py --compare --pool POOL             # CPU set-ups side by side, one run
+    python benchmarks/bench_train.py --profile --pool POOL             # where one CPU step's time goes
     python benchmarks/bench_train.py --preset base --frames 48 --size 256 --queries 2048 --device cuda
     torchrun --nproc_per_node 8 benchmarks/bench_train.py --preset giant --frames 48 --size 256 \\
         --queries 2048 --strategy fsdp --checkpointing                   # the paper's setting
 
-Prints steps/s, clips/s and queries/s measured after a warm-up (clips rendered on the fly by the data
-workers, so a slow CPU shows up here), and the peak GPU memory per process on CUDA.
+Prints steps/s, clips/s and queries/s measured after a warm-up, and the peak GPU memory per process on
+CUDA. ``--compare`` runs, one after the other in this process, the ways a CPU run can be set up: clips
+rendered on the fly by loader workers (which compete with training for the cores) or read from a
+pre-rendered pool (``d4rt generate``), fp32 or bf16 autocast, and the torch thread count; every ratio in
+its table is taken in the same run. ``--profile`` times the parts of one step (data, forward, loss,
+backward, optimiser) with torch's profiler.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ import argparse
 import json
 import os
 import tempfile
+import time
 from pathlib import Path
 
 import torch
@@ -22,42 +29,137 @@ import torch
 from d4rt.training import TrainConfig, train
 
 
+def build_config(args, **changes) -> TrainConfig:
+    source = changes.get("source", "render")
+    dataset = {"frames": args.frames, "size": [args.size, args.size], "render_pixels": (args.size * 3 // 2) ** 2,
+               "sampler": {"num_queries": args.queries}}
+    if source == "files":
+        dataset.update(source="files", directory=str(args.pool))
+    return TrainConfig.from_dict({
+        "model": {"preset": args.preset, "overrides": {"gradient_checkpointing": args.checkpointing}},
+        "data": {"batch_size": args.batch_size, "workers": changes.get("workers", args.workers), "dataset": dataset},
+        "optim": {"warmup_steps": 1},
+        "run": {"max_steps": args.steps, "device": args.device, "precision": changes.get("precision", args.precision),
+                "strategy": args.strategy, "log_every": args.warmup, "checkpoint_every": 10 ** 9,
+                "tensorboard": False, "progress": False},
+    })
+
+
+def measure(config: TrainConfig, warmup: int) -> float:
+    """Clips per second over the steps after ``warmup`` (the trainer's own training-time throughput)."""
+    with tempfile.TemporaryDirectory() as out:
+        train(config, out)
+        if os.environ.get("RANK", "0") != "0":
+            return float("nan")
+        records = [json.loads(line) for line in (Path(out) / "metrics.jsonl").read_text().splitlines()]
+    measured = [r for r in records if r["step"] > warmup and "throughput/clips_per_s" in r]
+    return sum(r["throughput/clips_per_s"] for r in measured) / len(measured)
+
+
+# name -> (source, workers, precision, torch threads); None keeps this process's setting.
+CPU_SETUPS = {
+    "render, 2 workers, fp32, 2 threads": ("render", 2, "fp32", 2),
+    "pool, 0 workers, fp32, 2 threads": ("files", 0, "fp32", 2),
+    "pool, 1 worker, fp32, 2 threads": ("files", 1, "fp32", 2),
+    "pool, 0 workers, bf16, 2 threads": ("files", 0, "bf16", 2),
+    "pool, 1 worker, bf16, 2 threads": ("files", 1, "bf16", 2),
+    "pool, 0 workers, fp32, 1 thread": ("files", 0, "fp32", 1),
+    "pool, 0 workers, bf16, 1 thread": ("files", 0, "bf16", 1),
+}
+
+
+def compare(args) -> None:
+    rows = []
+    for name, (source, workers, precision, threads) in CPU_SETUPS.items():
+        torch.set_num_threads(threads)
+        clips = measure(build_config(args, source=source, workers=workers, precision=precision), args.warmup)
+        rows.append((name, clips / args.batch_size))
+        print(f"  {name}: {rows[-1][1]:.2f} steps/s", flush=True)
+    base = rows[0][1]
+    print(f"\n{args.preset}: {args.frames} frames at {args.size}x{args.size}, {args.queries} queries/clip, "
+          f"{args.steps} steps ({args.warmup} left out), {os.cpu_count()} CPUs")
+    print("| set-up | steps/s | vs first |\n|---|---|---|")
+    for name, rate in rows:
+        print(f"| {name} | {rate:.2f} | {rate / base:.2f}x |")
+
+
+def profile(args) -> None:
+    """Time of each part of a training step, from the profiler's record_function ranges."""
+    from d4rt.model import D4RT
+    from d4rt.training.losses import d4rt_loss
+    from d4rt.training.optimization import build_optimizer
+
+    config = build_config(args, source="files" if args.pool else "render", workers=0)
+    model_config = config.validate()
+    model = D4RT(model_config).train()
+    optimizer = build_optimizer(model, config.optim)
+    dataset = config.data.build_dataset()
+    autocast = torch.autocast("cpu", dtype=torch.bfloat16, enabled=config.run.precision == "bf16")
+    parts: dict[str, float] = {}
+
+    def timed(name, fn):
+        start = time.perf_counter()
+        value = fn()
+        parts[name] = parts.get(name, 0.0) + time.perf_counter() - start
+        return value
+
+    def step(index: int) -> None:
+        batch = timed("data (load, sample, oracle, augment)",
+                      lambda: {k: v[None] for k, v in dataset[index % len(dataset)].items()})
+        with autocast:
+            out = timed("forward (encoder + decoder)",
+                        lambda: model(batch["video"], batch["queries"], batch["aspect_ratio"]))
+        loss, _ = timed("loss", lambda: d4rt_loss(out, batch, config.loss))
+        timed("backward", loss.backward)
+        timed("optimiser (clip + AdamW)", lambda: (torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0),
+                                                   optimizer.step(), optimizer.zero_grad(set_to_none=True)))
+
+    for i in range(args.warmup):
+        step(i)
+    parts.clear()
+    with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) as prof:
+        for i in range(args.warmup, args.steps):
+            step(i)
+    total = sum(parts.values())
+    n = args.steps - args.warmup
+    print(f"{args.preset}, {args.frames} frames at {args.size}, {args.queries} queries, {config.run.precision}, "
+          f"{torch.get_num_threads()} threads: {total / n * 1000:.0f} ms per step")
+    for name, seconds in parts.items():
+        print(f"  {name:40s} {seconds / n * 1000:7.1f} ms  {seconds / total:6.1%}")
+    print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=args.profile_rows))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="tiny")
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--size", type=int, default=64, help="encoder input side (the preset's image_size or less)")
-    parser.add_argument("--queries", type=int, default=512)
+    parser.add_argument("--queries", type=int, default=1024)
     parser.add_argument("--batch-size", type=int, default=1, help="clips per process per step")
-    parser.add_argument("--steps", type=int, default=30)
+    parser.add_argument("--steps", type=int, default=40)
     parser.add_argument("--warmup", type=int, default=10, help="steps left out of the measurement")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--device", default="auto")
     parser.add_argument("--precision", default="auto", choices=["auto", "fp32", "bf16"])
     parser.add_argument("--strategy", default="auto", choices=["auto", "single", "ddp", "fsdp"])
     parser.add_argument("--checkpointing", action="store_true", help="activation checkpointing")
+    parser.add_argument("--pool", type=Path, default=None, help="d4rt generate output (for --compare / --profile)")
+    parser.add_argument("--compare", action="store_true", help="CPU set-ups side by side (needs --pool)")
+    parser.add_argument("--profile", action="store_true", help="time the parts of a step")
+    parser.add_argument("--profile-rows", type=int, default=15)
     args = parser.parse_args()
+    if args.compare:
+        if args.pool is None:
+            parser.error("--compare needs --pool (a d4rt generate directory)")
+        return compare(args)
+    if args.profile:
+        return profile(args)
 
-    with tempfile.TemporaryDirectory() as out:
-        config = TrainConfig.from_dict({
-            "model": {"preset": args.preset, "overrides": {"gradient_checkpointing": args.checkpointing}},
-            "data": {"batch_size": args.batch_size, "workers": args.workers,
-                     "dataset": {"frames": args.frames, "size": [args.size, args.size],
-                                 "render_pixels": (args.size * 3 // 2) ** 2,
-                                 "sampler": {"num_queries": args.queries}}},
-            "optim": {"warmup_steps": 1},
-            "run": {"max_steps": args.steps, "device": args.device, "precision": args.precision,
-                    "strategy": args.strategy, "log_every": args.warmup, "checkpoint_every": 10 ** 9,
-                    "tensorboard": False, "progress": False},
-        })
-        if torch.cuda.is_available():
-            torch.cuda.reset_peak_memory_stats()
-        train(config, out)
-        if os.environ.get("RANK", "0") != "0":
-            return
-        records = [json.loads(line) for line in (Path(out) / "metrics.jsonl").read_text().splitlines()]
-    measured = [r for r in records if r["step"] > args.warmup]
-    clips = sum(r["throughput/clips_per_s"] for r in measured) / len(measured)
+    if torch.cuda.is_available():
+        torch.cuda.reset_peak_memory_stats()
+    clips = measure(build_config(args, source="files" if args.pool else "render"), args.warmup)
+    if os.environ.get("RANK", "0") != "0":
+        return
     world = int(os.environ.get("WORLD_SIZE", "1"))
     print(f"{args.preset}: {args.frames} frames at {args.size}x{args.size}, {args.queries} queries/clip, "
           f"batch {args.batch_size} x {world} process(es), {args.strategy}, {args.precision}")
