@@ -31,8 +31,9 @@ from d4rt.training import TrainConfig, train
 
 def build_config(args, **changes) -> TrainConfig:
     source = changes.get("source", "render")
-    dataset = {"frames": args.frames, "size": [args.size, args.size], "render_pixels": (args.size * 3 // 2) ** 2,
-               "sampler": {"num_queries": args.queries}}
+    dataset = {"frames": args.frames, "size": [args.size, args.size],
+               "render_pixels": args.render_pixels or (args.size * 3 // 2) ** 2,
+               "sampler": {"num_queries": args.queries}, "augment": {"crop_policy": args.crop_policy}}
     if source == "files":
         dataset.update(source="files", directory=str(args.pool))
     return TrainConfig.from_dict({
@@ -59,11 +60,13 @@ def measure(config: TrainConfig, warmup: int) -> float:
 # name -> (source, workers, precision, torch threads); None keeps this process's setting.
 CPU_SETUPS = {
     "render, 2 workers, fp32, 2 threads": ("render", 2, "fp32", 2),
+    "render, 1 worker, fp32, 2 threads": ("render", 1, "fp32", 2),
+    "render, 1 worker, fp32, 1 thread": ("render", 1, "fp32", 1),
+    "render, 1 worker, bf16, 2 threads": ("render", 1, "bf16", 2),
+    "render, 1 worker, bf16, 1 thread": ("render", 1, "bf16", 1),
     "pool, 0 workers, fp32, 2 threads": ("files", 0, "fp32", 2),
     "pool, 1 worker, fp32, 2 threads": ("files", 1, "fp32", 2),
-    "pool, 0 workers, bf16, 2 threads": ("files", 0, "bf16", 2),
     "pool, 1 worker, bf16, 2 threads": ("files", 1, "bf16", 2),
-    "pool, 0 workers, fp32, 1 thread": ("files", 0, "fp32", 1),
     "pool, 0 workers, bf16, 1 thread": ("files", 0, "bf16", 1),
 }
 
@@ -135,6 +138,9 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=8)
     parser.add_argument("--size", type=int, default=64, help="encoder input side (the preset's image_size or less)")
     parser.add_argument("--queries", type=int, default=1024)
+    parser.add_argument("--render-pixels", type=int, default=None, help="pixels per rendered frame "
+                        "(default: 1.5 x the input side, squared)")
+    parser.add_argument("--crop-policy", default="paper", choices=["paper", "centered", "none"])
     parser.add_argument("--batch-size", type=int, default=1, help="clips per process per step")
     parser.add_argument("--steps", type=int, default=40)
     parser.add_argument("--warmup", type=int, default=10, help="steps left out of the measurement")

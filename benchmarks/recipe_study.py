@@ -24,6 +24,7 @@ import argparse
 import copy
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -56,10 +57,11 @@ VARIANTS: dict[str, dict | list[dict]] = {
     "frames-8to24": {"data.dataset.frame_choices": [8, 8, 8, 12, 16, 24]},
     "crop-centered": {"data.dataset.augment.crop_policy": "centered"},
     "crop-none": {"data.dataset.augment.crop_policy": "none"},
+    "crop-none-seed1": {"data.dataset.augment.crop_policy": "none", "run.seed": 1, "data.dataset.seed": 1},
     "depth-25pct": {"data.dataset.sampler.depth_fraction": 0.25},
     "input-96": {"model.overrides": {"image_size": 96}, "data.dataset.size": [96, 96]},
-    "narrow-128": {"model.overrides": {"encoder_dim": 128, "encoder_mlp_dim": 512, "decoder_dim": 128,
-                                       "decoder_mlp_dim": 512}},
+    "narrow-128": {"model.overrides": {"encoder_dim": 128, "encoder_heads": 4, "encoder_mlp_dim": 512,
+                                       "decoder_dim": 128, "decoder_heads": 4, "decoder_mlp_dim": 512}},
     "no-confidence": {"loss.confidence_weighting": False},
     "bf16": {"run.precision": "bf16"},
     "curriculum": [{"data.dataset.sampler.depth_fraction": 0.6, "data.dataset.sampler.tgt_equals_cam_prob": 1.0},
@@ -135,6 +137,10 @@ def focal_error(model_dir: Path, heldout: Path, limit: int) -> float:
 def study_variant(name: str, spec, args) -> dict:
     phases = spec if isinstance(spec, list) else [spec]
     root = args.out / name
+    if (root / "result.json").is_file() and not args.fresh:  # an earlier invocation's finished variant
+        return json.loads((root / "result.json").read_text())
+    if root.exists():
+        shutil.rmtree(root)
     budget = args.minutes * 60.0
     result = {"name": name, "phases": [], "train_seconds": 0.0, "steps": 0}
     previous = None
@@ -192,6 +198,8 @@ def main() -> None:
     parser.add_argument("--parallel", type=int, default=2, help="variants trained side by side (one core each)")
     parser.add_argument("--calibration-steps", type=int, default=30)
     parser.add_argument("--focal-clips", type=int, default=8)
+    parser.add_argument("--fresh", action="store_true", help="retrain variants that already have a result.json "
+                        "in --out (default: reuse them, so an interrupted study continues)")
     parser.add_argument("--variants", default=",".join(VARIANTS), help="comma-separated subset of: "
                         + ", ".join(VARIANTS))
     args = parser.parse_args()

@@ -5,7 +5,8 @@
 
 Sources (docs/model-card/, each written by the command named in MODEL_CARD.md):
 
-- ``training.json`` (tools/training_summary.py): steps, clips, times, hardware;
+- ``training-stage<N>.json`` (tools/training_summary.py): steps, clips, times, hardware of each training
+  stage (stage N + 1 starts from stage N's weights);
 - ``eval-synthetic-dynamic-v1.json`` (``d4rt eval --benchmark synthetic-dynamic-v1``): the model beside
   the oracle, constant-depth and pycolmap baselines, aggregate and per clip;
 - ``focal.json`` (tools/measure_focal.py): focal-length errors, which ``d4rt eval`` does not score.
@@ -28,12 +29,15 @@ SOURCES = ROOT / "docs" / "model-card"
 BENCHMARK = "synthetic-dynamic-v1"
 TUM = "tum-fr3-long-office-household"
 
-# The targets of issue 8, as (what, threshold).
-TARGET_ABS_REL = 0.10
-TARGET_ATE_RATIO = 0.5
-TARGET_APD3D = 0.5
+# The targets of issue 14 (issue 8's were 0.1 / 0.5x / 0.5 / 0.85 / 5%: out of reach of a CPU-trained
+# tiny model; issue 14 set the ones below for it).
+TARGET_ABS_REL = 0.25
+TARGET_DELTA = 0.75
+TARGET_ATE_RATIO = 2.0
+TARGET_APD3D = 0.05
 TARGET_OA = 0.85
-TARGET_FOCAL = 0.05
+TARGET_FOCAL = 0.20
+TARGET_TUM_FOCAL = 0.20
 
 RESULT_COLUMNS = (  # (column of d4rt eval, header)
     ("abs_rel[scale&shift]", "depth AbsRel (s&s) ↓"), ("delta<1.25[scale&shift]", "δ<1.25 (s&s) ↑"),
@@ -47,8 +51,10 @@ METHOD_NAMES = {"d4rt": "**d4rt-tiny (this model)**", "oracle": "oracle (exact g
 
 
 def load_sources(directory: Path = SOURCES) -> dict:
-    return {name: json.loads((directory / f"{name}.json").read_text())
-            for name in ("training", f"eval-{BENCHMARK}", "focal")}
+    sources = {name: json.loads((directory / f"{name}.json").read_text()) for name in (f"eval-{BENCHMARK}", "focal")}
+    stages = sorted(directory.glob("training-stage*.json"), key=lambda p: int(p.stem.removeprefix("training-stage")))
+    sources["training"] = [json.loads(p.read_text()) for p in stages]
+    return sources
 
 
 def fmt(value: float | None, digits: int = 3) -> str:
@@ -60,24 +66,37 @@ def table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
 
 
-def training_section(training: dict) -> str:
-    hw = training["hardware"]
-    rows = [
-        ["model", f"`{training['preset']}` preset, {training['parameters'] / 1e6:.2f}M parameters, "
-                  f"max_frames {training['max_frames']}"],
-        ["data", f"{training['clips_seen']:,} synthetic clips rendered on the fly (each seen once), "
-                 f"{training['frames_per_clip']} frames at {training['input_size'][0]}x{training['input_size'][1]}, "
-                 f"{training['queries_per_clip']:,} queries per clip"],
-        ["steps", f"{training['steps']:,} (batch {training['clips_per_step']} clip)"],
-        ["training time", f"{training['training_seconds'] / 60:.0f} min of optimiser steps "
-                          f"({training['steps'] / training['training_seconds']:.2f} steps/s); "
-                          + ("in several runs, each resumed from the previous one's last checkpoint"
-                             if training["resumed"] else
-                             f"{training['wall_seconds'] / 60:.0f} min wall time with validation and checkpoints")],
-        ["hardware", f"CPU only: {hw['cpu']}, {hw['logical_cpus']} logical cores (shared), "
-                     f"torch {hw['torch']}, {training['config']['run']['precision']}"],
-    ]
+def training_section(stages: list[dict]) -> str:
+    first = stages[0]
+    rows = [["model", f"`{first['preset']}` preset, {first['parameters'] / 1e6:.2f}M parameters, "
+                      f"max_frames {first['max_frames']}"]]
+    for number, stage in enumerate(stages, 1):
+        rows += [[f"stage {number}", stage_summary(stage, number)]]
+    steps = sum(s["steps"] for s in stages)
+    seconds = sum(s["training_seconds"] for s in stages)
+    rows += [["total", f"{steps:,} steps, {seconds / 60:.0f} min of optimiser steps"]]
     return table(["", ""], rows)
+
+
+def stage_summary(training: dict, number: int) -> str:
+    hw, config = training["hardware"], training["config"]
+    dataset = config["data"]["dataset"]
+    frames = dataset.get("frame_choices") or [training["frames_per_clip"]]
+    frames_text = (f"{frames[0]} frames" if len(set(frames)) == 1
+                   else f"{min(frames)}-{max(frames)} frames (drawn from {', '.join(map(str, frames))})")
+    crops = dataset.get("augment", {}).get("crop_policy", "paper")
+    source = "rendered on the fly (each seen once)" if dataset["source"] == "render" else "read from files"
+    start = f"from stage {number - 1}'s weights; " if number > 1 else "from scratch; "
+    when = ("in several runs, each resumed from the previous one's last checkpoint" if training["resumed"] else
+            f"{training['wall_seconds'] / 60:.0f} min wall time with validation and checkpoints")
+    return (f"{start}{training['clips_seen']:,} synthetic clips {source}, {frames_text} at "
+            f"{training['input_size'][0]}x{training['input_size'][1]}, {crops} crops, "
+            f"{training['queries_per_clip']:,} queries per clip; {training['steps']:,} steps of "
+            f"{training['clips_per_step']} clip, peak lr {config['optim']['lr']:g}; "
+            f"{training['training_seconds'] / 60:.0f} min of optimiser steps "
+            f"({training['steps'] / training['training_seconds']:.2f} steps/s), {when}; CPU only: {hw['cpu']}, "
+            f"{hw['logical_cpus']} logical cores (shared), {hw.get('torch_threads', '?')} torch thread(s), "
+            f"torch {hw['torch']}, {config['run']['precision']}")
 
 
 def results_section(evaluation: dict) -> str:
@@ -135,10 +154,13 @@ def targets_section(evaluation: dict, focal: dict) -> str:
     p = pose_comparison(evaluation)
     ratio = p["d4rt_ate"] / p["colmap_ate"]
     median_focal = focal[BENCHMARK]["median_focal_error"]
+    tum_error = focal[TUM]["relative_error"]
     rows = [
         ["depth AbsRel (scale & shift)", f"≤ {TARGET_ABS_REL}", fmt(agg["abs_rel[scale&shift]"]),
          verdict(agg["abs_rel[scale&shift]"] <= TARGET_ABS_REL)],
-        ["camera ATE vs pycolmap on the same clips, no clip failing", f"≤ {TARGET_ATE_RATIO} x pycolmap",
+        ["depth δ<1.25 (scale & shift)", f"≥ {TARGET_DELTA}", fmt(agg["delta<1.25[scale&shift]"]),
+         verdict(agg["delta<1.25[scale&shift]"] >= TARGET_DELTA)],
+        ["camera ATE vs pycolmap on the same clips, every clip posed", f"≤ {TARGET_ATE_RATIO:g} x pycolmap",
          f"{ratio:.2f} x pycolmap ({fmt(p['d4rt_ate'])} vs {fmt(p['colmap_ate'])}); "
          f"{len(p['d4rt_failed'])} clip(s) failed", verdict(ratio <= TARGET_ATE_RATIO and not p["d4rt_failed"])],
         ["APD3D (camera-frame tracks)", f"≥ {TARGET_APD3D}", fmt(agg["apd3d"]),
@@ -146,8 +168,10 @@ def targets_section(evaluation: dict, focal: dict) -> str:
         ["OA (camera-frame tracks)", f"≥ {TARGET_OA}", fmt(agg["oa"]), verdict(agg["oa"] >= TARGET_OA)],
         ["focal error, median over clips", f"≤ {TARGET_FOCAL:.0%}", f"{median_focal:.1%}",
          verdict(median_focal <= TARGET_FOCAL)],
+        ["focal on the 17 real TUM frames vs 535.4 px", f"within {TARGET_TUM_FOCAL:.0%}", f"{tum_error:+.1%}",
+         verdict(abs(tum_error) <= TARGET_TUM_FOCAL)],
     ]
-    return table(["target (issue 8)", "goal", "measured", ""], rows)
+    return table(["target (issue 14)", "goal", "measured", ""], rows)
 
 
 def sections(sources: dict) -> dict[str, str]:

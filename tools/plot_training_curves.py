@@ -1,9 +1,14 @@
 """Training curves of a ``d4rt train`` run as one PNG: loss terms and validation metrics against steps.
 
     pip install -e ".[docs]"          # matplotlib (a documentation tool, never needed at run time)
-    python tools/plot_training_curves.py docs/model-card/metrics.jsonl --out docs/model-card/training-curves.png
+    python tools/plot_training_curves.py docs/model-card/metrics-stage1.jsonl docs/model-card/metrics-stage2.jsonl \
+        --out docs/model-card/training-curves.png
 
-Reads ``metrics.jsonl`` (one JSON object per logged step, docs/training.md "Logging and validation").
+Reads ``metrics.jsonl`` files (one JSON object per logged step, docs/training.md "Logging and
+validation"). Several files are successive stages of one model (a stage started with
+``model.init_from`` the previous one's weights, so its steps count from 0 again): they are drawn end to
+end on one step axis, each stage's steps offset by the steps before it, with a dashed line where a
+stage begins.
 Training loss terms are noisy per window (one clip per step), so they are drawn faint as logged and
 bold as a running median over ``--smooth`` logged windows; validation metrics are drawn as logged.
 """
@@ -43,7 +48,18 @@ def running_median(values: np.ndarray, window: int) -> np.ndarray:
     return np.array([np.median(values[max(0, i + 1 - window): i + 1]) for i in range(len(values))])
 
 
-def plot(records: list[dict], out: Path, smooth: int, title: str) -> None:
+def join_stages(stages: list[list[dict]]) -> tuple[list[dict], list[int]]:
+    """Records of successive stages on one step axis -> (records, the first step of each later stage)."""
+    joined, starts, offset = [], [], 0
+    for index, records in enumerate(stages):
+        if index:
+            starts.append(offset)
+        joined += [{**r, "step": r["step"] + offset} for r in records]
+        offset += max((r["step"] for r in records), default=0)
+    return joined, starts
+
+
+def plot(records: list[dict], out: Path, smooth: int, title: str, stage_starts: list[int] = ()) -> None:
     fig, axes = plt.subplots(2, 3, figsize=(16, 8.5), constrained_layout=True)
     axes = axes.ravel()
     ax = axes[0]
@@ -71,6 +87,8 @@ def plot(records: list[dict], out: Path, smooth: int, title: str) -> None:
         ax.legend(fontsize=8)
     for ax in axes:
         ax.grid(alpha=0.3)
+        for start in stage_starts:
+            ax.axvline(start, color="0.4", ls="--", lw=0.8)
     fig.suptitle(title)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)
@@ -79,13 +97,14 @@ def plot(records: list[dict], out: Path, smooth: int, title: str) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("metrics", type=Path, help="metrics.jsonl of a run")
+    parser.add_argument("metrics", type=Path, nargs="+", help="metrics.jsonl of a run (several: its stages, in order)")
     parser.add_argument("--out", type=Path, required=True, help="PNG file to write")
     parser.add_argument("--smooth", type=int, default=20, help="logged windows per running median")
     parser.add_argument("--title", default="d4rt training curves")
     args = parser.parse_args()
-    records = [json.loads(line) for line in args.metrics.read_text().splitlines() if line.strip()]
-    plot(records, args.out, args.smooth, args.title)
+    stages = [[json.loads(line) for line in path.read_text().splitlines() if line.strip()] for path in args.metrics]
+    records, starts = join_stages(stages)
+    plot(records, args.out, args.smooth, args.title, starts)
     print(f"wrote {args.out}")
 
 
