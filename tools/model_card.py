@@ -8,7 +8,9 @@ Sources (docs/model-card/, each written by the command named in MODEL_CARD.md):
 - ``training-stage<N>.json`` (tools/training_summary.py): steps, clips, times, hardware of each training
   stage (stage N + 1 starts from stage N's weights);
 - ``eval-synthetic-dynamic-v1.json`` (``d4rt eval --benchmark synthetic-dynamic-v1``): the model beside
-  the oracle, constant-depth and pycolmap baselines, aggregate and per clip;
+  the oracle and constant-depth baselines, aggregate and per clip; ``eval-synthetic-dynamic-v1-colmap.json``
+  the pycolmap baseline alone (``--baseline colmap`` without a checkpoint: it does not depend on the
+  model, so it is not re-run with every model);
 - ``focal.json`` (tools/measure_focal.py): focal-length errors, which ``d4rt eval`` does not score.
 
 Each generated section sits between ``<!-- BEGIN name -->`` and ``<!-- END name -->`` markers; the text
@@ -52,6 +54,9 @@ METHOD_NAMES = {"d4rt": "**d4rt-tiny (this model)**", "oracle": "oracle (exact g
 
 def load_sources(directory: Path = SOURCES) -> dict:
     sources = {name: json.loads((directory / f"{name}.json").read_text()) for name in (f"eval-{BENCHMARK}", "focal")}
+    # pycolmap's figures do not depend on the model: its own run of d4rt eval, kept beside the model's.
+    colmap = json.loads((directory / f"eval-{BENCHMARK}-colmap.json").read_text())
+    sources[f"eval-{BENCHMARK}"]["methods"] += colmap["methods"]
     stages = sorted(directory.glob("training-stage*.json"), key=lambda p: int(p.stem.removeprefix("training-stage")))
     sources["training"] = [json.loads(p.read_text()) for p in stages]
     return sources
