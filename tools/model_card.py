@@ -89,13 +89,14 @@ def stage_summary(training: dict, number: int) -> str:
     frames = dataset.get("frame_choices") or [training["frames_per_clip"]]
     frames_text = (f"{frames[0]} frames" if len(set(frames)) == 1
                    else f"{min(frames)}-{max(frames)} frames (drawn from {', '.join(map(str, frames))})")
-    crops = dataset.get("augment", {}).get("crop_policy", "paper")
+    crops = {"paper": "the paper's random crops", "centered": "centred crops",
+             "none": "whole frames (no crop)"}[dataset.get("augment", {}).get("crop_policy", "paper")]
     source = "rendered on the fly (each seen once)" if dataset["source"] == "render" else "read from files"
     start = f"from stage {number - 1}'s weights; " if number > 1 else "from scratch; "
     when = ("in several runs, each resumed from the previous one's last checkpoint" if training["resumed"] else
             f"{training['wall_seconds'] / 60:.0f} min wall time with validation and checkpoints")
     return (f"{start}{training['clips_seen']:,} synthetic clips {source}, {frames_text} at "
-            f"{training['input_size'][0]}x{training['input_size'][1]}, {crops} crops, "
+            f"{training['input_size'][0]}x{training['input_size'][1]}, {crops}, "
             f"{training['queries_per_clip']:,} queries per clip; {training['steps']:,} steps of "
             f"{training['clips_per_step']} clip, peak lr {config['optim']['lr']:g}; "
             f"{training['training_seconds'] / 60:.0f} min of optimiser steps "
