@@ -25,6 +25,21 @@ def same_tensors(a: Path, b: Path) -> bool:
     return x.keys() == y.keys() and all(x[k].dtype == y[k].dtype and x[k].equal(y[k]) for k in x)
 
 
+def start_run_and_wait_for_steps(config: Path, out: Path, steps: int, new_session: bool = False) -> subprocess.Popen:
+    """``d4rt train`` in a subprocess (its own process group with ``new_session``), returned once it has
+    logged ``steps`` steps (or exited, or 240 s passed)."""
+    process = subprocess.Popen([sys.executable, "-m", "d4rt", "train", "--config", str(config), "--out", str(out)],
+                               env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               start_new_session=new_session)
+    metrics = out / "metrics.jsonl"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and process.poll() is None:
+        if metrics.is_file() and len(metrics.read_text().splitlines()) >= steps:
+            break
+        time.sleep(0.01)
+    return process
+
+
 def test_sigkill_mid_run_then_resume_is_bitwise_equal_to_an_uninterrupted_run(tmp_path, clip_dir):
     config = write_config(tmp_path / "run.yaml", fast_config(clip_dir, run={"max_steps": 12, "checkpoint_every": 2,
                                                                            "log_every": 1}))
@@ -73,14 +88,7 @@ def test_sigterm_writes_a_checkpoint_of_the_current_step_and_resume_loses_nothin
     assert run_d4rt("train", "--config", str(config), "--out", str(reference)).returncode == 0
 
     stopped = tmp_path / "stopped"
-    process = subprocess.Popen([sys.executable, "-m", "d4rt", "train", "--config", str(config), "--out", str(stopped)],
-                               env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    metrics = stopped / "metrics.jsonl"
-    deadline = time.monotonic() + 240
-    while time.monotonic() < deadline and process.poll() is None:
-        if metrics.is_file() and len(metrics.read_text().splitlines()) >= 3:
-            break
-        time.sleep(0.01)
+    process = start_run_and_wait_for_steps(config, stopped, 3)
     process.send_signal(signal.SIGTERM)
     out, err = process.communicate(timeout=120)
     assert process.returncode == 128 + signal.SIGTERM, err
@@ -117,15 +125,7 @@ def test_a_signal_to_the_process_group_with_loader_workers_stops_cleanly_and_res
     config, reference = workers_reference
     sig = signal.Signals[name]
     stopped = tmp_path / "stopped"
-    process = subprocess.Popen([sys.executable, "-m", "d4rt", "train", "--config", str(config), "--out", str(stopped)],
-                               env=subprocess_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=True)
-    metrics = stopped / "metrics.jsonl"
-    deadline = time.monotonic() + 240
-    while time.monotonic() < deadline and process.poll() is None:
-        if metrics.is_file() and len(metrics.read_text().splitlines()) >= 3:
-            break
-        time.sleep(0.01)
+    process = start_run_and_wait_for_steps(config, stopped, 3, new_session=True)
     os.killpg(process.pid, sig)  # the group: the run and its workers
     out, err = process.communicate(timeout=120)
     assert "killed by signal" not in err and "exited unexpectedly" not in err, err
