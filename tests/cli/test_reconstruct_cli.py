@@ -114,7 +114,7 @@ def test_image_folder_with_range_and_encoder_resolution(tmp_path, clip, checkpoi
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["depth", "points.ply", "reconstruction.npz",
                                                                     "trajectory_tum.txt"]
     with np.load(tmp_path / "out" / "reconstruction.npz") as npz:
-        assert npz["depth"].shape == (4, 64, 64) and npz["tracks"].shape == (9, 4, 3)  # tiny: 64x64 encoder
+        assert npz["depth"].shape == (4, 55, 74) and npz["tracks"].shape == (9, 4, 3)  # 64x64 pixels at 4:3
 
 
 def test_real_tum_frames_every_output_with_known_intrinsics(tmp_path, checkpoint, cli):
@@ -228,6 +228,27 @@ def test_bad_options_and_debug(tmp_path, clip, cli):
     r = cli("reconstruct", tmp_path / "missing.mp4", "-o", tmp_path / "out", "--debug")
     assert r.returncode == 2 and "Traceback" in r.stderr and r.stderr.strip().endswith("does not exist")
     assert not (tmp_path / "out").exists()
+
+
+def test_output_folder_and_confidence_refusals(tmp_path, clip, checkpoint, cli):
+    """A non-empty output folder needs --overwrite (then it is replaced as a whole); a confidence threshold
+    that leaves nothing is an error with the range found. Each: one line, exit 2, nothing written."""
+    video = tmp_path / "v.npy"
+    np.save(video, clip.rgb[:4])
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "earlier.ply").write_text("an earlier run's")
+    base = ("reconstruct", video, "-o", out, "--checkpoint", checkpoint, "--tracks", "2")
+    for extra, message in (((), "is not empty: pass --overwrite"),
+                           (("--overwrite", "--min-confidence", "1e9"), "confidence >= 1e+09 (this reconstruction's")):
+        r = cli(*base, *extra)
+        errors = [line for line in r.stderr.splitlines() if "error" in line]  # (after progress bars: work began)
+        assert r.returncode == 2 and len(errors) == 1 and message in errors[0] and "Traceback" not in r.stderr, r.stderr
+        assert [p.name for p in tmp_path.iterdir()] == ["v.npy", "out"] and [p.name for p in out.iterdir()] == ["earlier.ply"]
+    r = cli(*base, "--overwrite", "--outputs", "npz,tum")
+    assert r.returncode == 0, r.stderr
+    assert "outputs: depth maps 32x24, point cloud from every pixel, 2x2 tracks: about" in r.stdout
+    assert sorted(p.name for p in out.iterdir()) == ["reconstruction.npz", "trajectory_tum.txt"]
 
 
 def test_every_format_has_a_cli_name(capsys):

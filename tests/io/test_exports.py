@@ -120,12 +120,17 @@ def test_depth_pngs_round_trip(clip, saved):
 def test_confidence_threshold_filters_points_and_depth_pixels(clip, tmp_path):
     rec = clip.reconstruction()  # the oracle's confidence is 1 wherever it answers
     kept = exports.compute_outputs(rec, ["ply", "depth"], min_confidence=0.5, point_stride=4)
-    dropped = exports.compute_outputs(rec, ["ply", "depth"], min_confidence=1.5, point_stride=4)
-    assert len(kept.points) == 5 * 8 * 10 and len(dropped.points) == 0
-    assert kept.depth_valid().all() and not dropped.depth_valid().any()
-    exports.write_outputs(dropped, tmp_path / "o", ["depth", "ply"])
+    assert len(kept.points) == 5 * 8 * 10 and kept.depth_valid().all()
+    # A threshold that leaves nothing is an error naming the range found, not an empty file.
+    for formats, what in ((["ply"], "no point"), (["depth"], "no depth pixel")):
+        with pytest.raises(UserError, match=f"{what} has confidence >= 1.5 .*confidences are all 1\\)"):
+            exports.compute_outputs(rec, formats, min_confidence=1.5, point_stride=4)
+    # Pixels below the threshold are 0 (no depth) in the PNGs.
+    kept.confidence[1:] = 0.25
+    exports.write_outputs(kept, tmp_path / "o", ["depth"])
     scale = json.loads((tmp_path / "o" / "depth" / "depth_scale.json").read_text())["depth_scale"]
-    assert not read_depth_png(tmp_path / "o" / "depth" / "000000.png", scale).any()
+    assert read_depth_png(tmp_path / "o" / "depth" / "000000.png", scale).all()
+    assert not read_depth_png(tmp_path / "o" / "depth" / "000001.png", scale).any()
 
 
 def _read_ply(path):
@@ -237,13 +242,31 @@ def test_failed_save_leaves_nothing_behind(clip, tmp_path, monkeypatch):
 
     target.mkdir(parents=True)
     (target / "points.ply").write_text("old")
-    (target / "keep.txt").write_text("mine")
+    (target / "stale.txt").write_text("an earlier run's")
     with pytest.raises(OSError):
-        rec.save(target, ["ply", "tum"], point_stride=4)
+        rec.save(target, ["ply", "tum"], point_stride=4, overwrite=True)
     assert (target / "points.ply").read_text() == "old" and sorted(p.name for p in target.parent.iterdir()) == ["out"]
     monkeypatch.undo()
-    rec.save(target, ["ply"], point_stride=4)  # replaces its own files, leaves the others
-    assert (target / "points.ply").read_bytes().startswith(b"ply\n") and (target / "keep.txt").read_text() == "mine"
+    rec.save(target, ["ply"], point_stride=4, overwrite=True)  # the folder as a whole is replaced
+    assert sorted(p.name for p in target.iterdir()) == ["points.ply"]
+    assert (target / "points.ply").read_bytes().startswith(b"ply\n")
+    assert sorted(p.name for p in target.parent.iterdir()) == ["out"]  # no staging or old folder left
+
+
+def test_a_non_empty_output_folder_is_refused_before_any_work(clip, tmp_path, monkeypatch):
+    """Another run's files never end up beside this run's: a non-empty folder needs overwrite."""
+    target = tmp_path / "out"
+    target.mkdir()
+    (target / "mine.txt").write_text("keep")
+    rec = clip.reconstruction()
+    monkeypatch.setattr(exports, "compute_outputs", lambda *a, **k: pytest.fail("decoded before refusing"))
+    with pytest.raises(UserError, match="is not empty: pass --overwrite"):
+        rec.save(target, ["tum"])
+    assert [p.name for p in target.iterdir()] == ["mine.txt"]
+    monkeypatch.undo()
+    (target / "mine.txt").unlink()
+    rec.save(target, ["tum"])  # an empty folder is fine
+    assert [p.name for p in target.iterdir()] == ["trajectory_tum.txt"]
 
 
 def test_format_names_and_missing_rerun(clip, tmp_path, monkeypatch, capsys):

@@ -89,6 +89,39 @@ def test_least_squares_intrinsics_are_exact_for_an_off_centre_principal_point():
         rec.cameras(intrinsics=np.eye(4))
 
 
+def test_one_shared_square_pixel_camera_is_exact_for_a_video_without_zoom():
+    """camera="single" pools every frame's grid points into one camera; with square pixels one focal length
+    fits x and y together. Exact on the oracle, for both recipes (lstsq also finds an off-centre point)."""
+    clip = render_clip(5, 6, 36, 60, zoom=False, principal_point_jitter=0.1, num_objects=3)
+    assert np.allclose(clip.intrinsics, clip.intrinsics[:1])  # one true camera
+    rec = clip.reconstruction()
+    single = rec.cameras(method="lstsq", camera="single", square_pixels=True).intrinsics
+    assert np.abs(single - clip.intrinsics).max() < 1e-6 * clip.intrinsics[0, 0, 0]
+    centred = render_clip(5, 6, 36, 60, zoom=False, num_objects=3)
+    median = centred.reconstruction().cameras(camera="single", square_pixels=True).intrinsics
+    assert np.abs(median - centred.intrinsics).max() < 1e-6 * centred.intrinsics[0, 0, 0]
+    with pytest.raises(UserError, match="camera must be one of"):
+        rec.cameras(camera="shared")
+
+
+def test_exports_keep_one_camera_unless_the_video_zooms(tmp_path, capsys):
+    """The exports' default ("auto"): one camera where the per-frame focal lengths agree, per-frame
+    cameras (with a notice) where they do not; every export uses the same intrinsics."""
+    from d4rt.io.exports import compute_outputs
+
+    steady = render_clip(5, 6, 36, 60, zoom=False, num_objects=3)
+    out = compute_outputs(steady.reconstruction(), ["npz"], track_grid=0)
+    assert np.allclose(out.video_intrinsics, steady.intrinsics, rtol=1e-9)
+    assert (out.video_intrinsics == out.video_intrinsics[:1]).all() and "focal lengths" not in capsys.readouterr().err
+    zooming = next(c for c in (render_clip(s, 6, 36, 60, zoom=True, num_objects=3) for s in range(20))
+                   if c.intrinsics[-1, 0, 0] / c.intrinsics[0, 0, 0] > 1.3)
+    out = compute_outputs(zooming.reconstruction(), ["npz"], track_grid=0)
+    assert np.allclose(out.video_intrinsics, zooming.intrinsics, rtol=1e-6)
+    assert "each frame keeps its own camera" in capsys.readouterr().err
+    forced = compute_outputs(zooming.reconstruction(), ["tum"], camera="single")
+    assert (forced.video_intrinsics == forced.video_intrinsics[:1]).all()
+
+
 def test_tracks_in_world_and_camera_frames(room_clip):
     rec = room_clip.reconstruction()
     rng = np.random.default_rng(0)

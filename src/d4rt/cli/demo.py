@@ -30,7 +30,10 @@ def register(subparsers) -> None:
                               description="Reconstruct the bundled samples (a synthetic clip with exact ground "
                                           "truth, and 17 real TUM RGB-D frames), write every output and print "
                                           "their accuracy.")
-    p.add_argument("--out", default="d4rt-demo", help="output directory (default: ./d4rt-demo)")
+    p.add_argument("-o", "--out", default="d4rt-demo",
+                   help="output directory (default: ./d4rt-demo; an earlier demo's output there is replaced)")
+    p.add_argument("--overwrite", action="store_true", help="replace a non-empty output directory that is not an "
+                                                            "earlier demo's output")
     p.set_defaults(func=run)
 
 
@@ -56,11 +59,16 @@ def tum_frames_dir() -> Path:
 def run(args) -> int:
     from d4rt.io.exports import check_output_dir
 
-    out = check_output_dir(args.out)
+    out = check_output_dir(args.out, args.overwrite or is_demo_output(Path(args.out)))
     model = bundled_model()
     run_synthetic(model, out / "synthetic")
     run_real(model, out / "tum")
     return 0
+
+
+def is_demo_output(folder: Path) -> bool:
+    """An earlier demo's output (only its two sample folders): re-running the demo replaces it."""
+    return folder.is_dir() and {p.name for p in folder.iterdir()} <= {"synthetic", "tum"}
 
 
 def run_synthetic(model, out: Path) -> None:
@@ -74,7 +82,8 @@ def run_synthetic(model, out: Path) -> None:
           f"{clip.num_bodies - 1} rigid bodies)")
     rec = model.reconstruct(clip.rgb) if model is not None else clip.reconstruction()
     fps = info["options"]["fps"] / info["options"]["time_stride"]
-    paths = rec.save(out, timestamps=np.asarray(info["times"]), fps=fps, point_stride=POINT_STRIDE, progress=True)
+    paths = rec.save(out, timestamps=np.asarray(info["times"]), fps=fps, point_stride=POINT_STRIDE, overwrite=True,
+                     progress=True)
     print(f"wrote {out}/: {', '.join(p.name for p in paths)}")
     with np.load(out / "reconstruction.npz") as saved:
         for line in accuracy_report(clip, dict(saved)):
@@ -94,7 +103,7 @@ def run_real(model, out: Path, resolution=(120, 160), point_stride: int = 2) -> 
     frames = load_frames(frames_dir, progress=True)
     rec = model.reconstruct(frames.rgb)
     paths = rec.save(out, timestamps=frames.timestamps, fps=frames.fps, resolution=resolution,
-                     point_stride=point_stride, progress=True)
+                     point_stride=point_stride, overwrite=True, progress=True)
     print(f"wrote {out}/: {', '.join(p.name for p in paths)}")
     with np.load(out / "reconstruction.npz") as saved:
         fx = float(np.median(saved["video_intrinsics"][:, 0, 0]))

@@ -11,7 +11,7 @@ import numpy as np
 from tqdm import tqdm
 
 from d4rt.errors import UserError
-from d4rt.io.exports import FORMATS, ON_REQUEST
+from d4rt.io.exports import CAMERA_CHOICES, FORMATS, ON_REQUEST
 
 
 def register(subparsers) -> None:
@@ -22,7 +22,10 @@ def register(subparsers) -> None:
     p.add_argument("input", metavar="INPUT",
                    help="a video file (.mp4 .mov .avi .webm .mkv), a folder of images, or an .npy/.npz array "
                         "(T, H, W, 3)")
-    p.add_argument("-o", "--out", required=True, metavar="OUT_DIR", help="output directory")
+    p.add_argument("-o", "--out", required=True, metavar="OUT_DIR",
+                   help="output directory (new or empty; see --overwrite)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a non-empty OUT_DIR as a whole (atomically, once every new file is written)")
     frames = p.add_argument_group("frames")
     frames.add_argument("--start", type=int, default=0, help="first frame, 0-based (default: 0)")
     frames.add_argument("--end", type=int, default=None, help="stop before this frame (default: the last)")
@@ -43,11 +46,20 @@ def register(subparsers) -> None:
     outputs.add_argument("--intrinsics", metavar="FX,FY,CX,CY", default=None,
                          help="known intrinsics in pixels of the input frames, OpenCV convention (top-left pixel "
                               "centre at 0,0); they replace the estimated ones")
+    outputs.add_argument("--camera", choices=CAMERA_CHOICES, default="auto",
+                         help="estimated intrinsics: 'single' camera for the whole video (what splatting and MVS "
+                              "tools expect), one 'per-frame' (the paper's recipe; for zooming shots) or 'auto' (the "
+                              "default: single unless the per-frame focal lengths differ by more than 15%%)")
+    outputs.add_argument("--non-square-pixels", action="store_true",
+                         help="estimate fx and fy separately (default: square pixels, fx = fy)")
     outputs.add_argument("--resolution", default="original",
-                         help="depth maps at 'original' (the default: the input's size), 'encoder' (the model's "
-                              "input size) or WIDTHxHEIGHT")
+                         help="depth maps at 'original' (the default: the input's size), 'encoder' (about the model's "
+                              "input pixel count, at the input's aspect ratio) or WIDTHxHEIGHT")
     outputs.add_argument("--min-confidence", type=float, default=None, metavar="C",
-                         help="drop points and depth pixels below this confidence (default: keep all)")
+                         help="drop points and depth pixels below this confidence (default: keep all). The scale is "
+                              "the model's own: positive, higher is more certain, comparable within one video only "
+                              "(the bundled model's lie around 0.2-0.6); reconstruction.npz keeps every value to "
+                              "choose from. A threshold that leaves nothing is an error that prints the range")
     outputs.add_argument("--point-stride", type=int, default=None, metavar="N",
                          help="point cloud from every n-th pixel (default: as dense as the depth maps)")
     outputs.add_argument("--tracks", type=int, default=16, metavar="N",
@@ -117,6 +129,37 @@ class EncodeProgress:
         return self.source.keeping(count)
 
 
+LARGE_QUERIES = 20_000_000  # above this many decoded queries, a one-line notice before the work starts
+
+
+def describe_work(rec, formats, resolution, point_stride: int | None, track_grid: int) -> str:
+    """One line, printed before any decoding: the output sizes and about how many queries they cost
+    (the depth maps and the point cloud decode one query per output pixel, tracks one per point and
+    frame), with a notice and the cheaper options when that is a lot."""
+    from d4rt.io.exports import FORMAT_NEEDS
+
+    needs = set().union(*(FORMAT_NEEDS[f] for f in formats))
+    t = rec.num_frames
+    out_h, out_w = rec.output_size(resolution)
+    stride = point_stride or max(1, int(min(rec.height / out_h, rec.width / out_w)))
+    counts = {"depth": t * out_h * out_w if "depth" in needs else 0,
+              "points": t * -(-rec.height // stride) * -(-rec.width // stride) if "points" in needs else 0,
+              "tracks": track_grid * track_grid * t if "tracks" in needs else 0}
+    total = sum(counts.values())
+    parts = []
+    if counts["depth"]:
+        parts.append(f"depth maps {out_w}x{out_h}")
+    if counts["points"]:
+        parts.append("point cloud from every pixel" if stride == 1 else f"point cloud from 1 pixel in {stride}x{stride}")
+    if counts["tracks"]:
+        parts.append(f"{track_grid}x{track_grid} tracks")
+    line = f"outputs: {', '.join(parts) or 'cameras only'}: about {total / 1e6:.1f}M queries to decode"
+    if total > LARGE_QUERIES:
+        line += (" - a lot for this machine; --resolution encoder, --point-stride N or --outputs narrow it, "
+                 "--max-frames/--stride shorten the video")
+    return line
+
+
 def run(args) -> int:
     import torch
 
@@ -131,7 +174,7 @@ def run(args) -> int:
     dense_resolution = (args.dense_resolution if args.dense_resolution in (None, "original")
                         else parse_resolution(args.dense_resolution, "--dense-resolution"))
     formats = parse_formats(args.outputs)
-    out_dir = check_output_dir(args.out)
+    out_dir = check_output_dir(args.out, args.overwrite)
     selection = FrameRange(args.start, args.end, args.stride, args.max_frames)
     device = resolve_device(args.device, "--device")
 
@@ -145,7 +188,9 @@ def run(args) -> int:
         # What model.reconstruct(video, window=, overlap=) builds, with a progress bar on the encoder.
         source = EncodeProgress(ModelSource(model, frames.rgb, max_window=args.window), bar)
         rec = Reconstruction(source, frames.rgb, window=args.window, overlap=args.overlap, progress=True)
-        paths = rec.save(out_dir, formats, resolution=resolution, intrinsics=intrinsics,
+        print(describe_work(rec, formats, resolution, args.point_stride, args.tracks))
+        paths = rec.save(out_dir, formats, overwrite=args.overwrite, resolution=resolution, intrinsics=intrinsics,
+                         camera=args.camera, square_pixels=not args.non_square_pixels,
                          min_confidence=args.min_confidence, point_stride=args.point_stride, track_grid=args.tracks,
                          track_frame=args.track_frame, dense_resolution=dense_resolution,
                          timestamps=frames.timestamps if frames.has_clock else None,

@@ -13,7 +13,7 @@ import os
 import shutil
 import sys
 import tempfile
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, fields
 from pathlib import Path
 
@@ -52,7 +52,7 @@ FORMATS = {
 # Asked for by name only ("all" leaves them out): dense tracking decodes millions of queries.
 ON_REQUEST = ("dense-tracks",)
 # What each format needs decoded.
-_NEEDS = {
+FORMAT_NEEDS = {
     "npz": {"depth", "cameras", "points", "tracks"},
     "depth": {"depth"},
     "depth-video": {"depth"},
@@ -161,14 +161,21 @@ def parse_formats(formats) -> list[str]:
     return [n for n in FORMATS if n in names]
 
 
-def check_output_dir(directory: str | Path) -> Path:
+def check_output_dir(directory: str | Path, overwrite: bool = False) -> Path:
+    """The output folder, checked before any work: it must not exist, be empty, or (``overwrite``) be a
+    folder whose whole contents the new run may replace. Mixing one run's files with another's would
+    leave stale outputs beside fresh ones."""
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
         raise UserError(f"output {directory} exists and is not a directory")
+    if not overwrite and directory.is_dir() and any(directory.iterdir()):
+        raise UserError(f"output folder {directory} is not empty: pass --overwrite to replace it (overwrite=True "
+                        "in Python), or choose another folder")
     return directory
 
 
-def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, min_confidence: float | None = None,
+def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, camera: str = "auto",
+                    square_pixels: bool = True, min_confidence: float | None = None,
                     point_stride: int | None = None, track_grid: int = 16, track_frame: int = 0,
                     dense_resolution=None, timestamps=None, fps: float | None = None,
                     progress: bool = False) -> ReconstructionOutputs:
@@ -176,8 +183,13 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
 
     resolution: depth maps at None (the input's size, continuous queries), "encoder" or (H, W).
     intrinsics: known (3, 3) or (T, 3, 3) intrinsics in pixels of the input frames (OpenCV centres);
-    they replace the estimate and are rescaled for the depth maps' resolution. min_confidence: points
-    and depth pixels below it are dropped (None: keep every positive confidence). point_stride: point
+    they replace the estimate and are rescaled for the depth maps' resolution. camera: "single" (one
+    camera for the whole video, what splatting and MVS tools expect), "per-frame" (the paper's recipe,
+    for zooming shots) or "auto" (the default: single where the per-frame focal lengths agree, see
+    :func:`choose_camera_model`); square_pixels: fx = fy (the default); both apply to estimated
+    intrinsics only, and every export uses the same ones. min_confidence: points and depth pixels below
+    it are dropped (None: keep every positive confidence); if nothing is left, a UserError gives the
+    range of confidences found (the scale is the model's: see docs/outputs.md). point_stride: point
     cloud from every n-th pixel of the input (default: the input-to-output size ratio, so the cloud is
     about as dense as the depth maps). track_grid: tracks start from a track_grid x track_grid grid of
     pixels of frame ``track_frame`` (0: no tracks). dense_resolution: the dense-tracking grid, (H, W),
@@ -187,9 +199,11 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     fps: for the videos and the viewer (default: from the timestamps, else 10).
     """
     t, h, w = rec.video.shape[:3]
-    needs = set().union(*(_NEEDS[f] for f in formats))
+    needs = set().union(*(FORMAT_NEEDS[f] for f in formats))
     if min_confidence is not None and not np.isfinite(min_confidence):
         raise UserError(f"the confidence threshold must be a finite number, got {min_confidence}")
+    if camera not in CAMERA_CHOICES:
+        raise UserError(f"camera must be one of {', '.join(CAMERA_CHOICES)}, got {camera!r}")
     if track_grid < 0:
         raise UserError(f"the track grid must be >= 0 points per side, got {track_grid}")
     if not 0 <= track_frame < t:
@@ -211,16 +225,23 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     for stage in bar:
         bar.set_postfix_str(stage)
         if stage == "cameras":
-            cams = rec.cameras(intrinsics=intrinsics)
+            if camera == "auto" and intrinsics is None:
+                camera = choose_camera_model(rec, square_pixels)
+            cams = rec.cameras(intrinsics=intrinsics, camera="single" if camera == "auto" else camera,
+                               square_pixels=square_pixels)
             out.video_intrinsics, out.cam_to_world = cams.intrinsics, cams.cam_to_world
         elif stage == "depth":
             depth = rec.depth(resolution)
             out.depth, out.confidence = depth.depth, depth.confidence
+            _check_something_left(out.confidence, min_confidence, "depth pixel")
             resize = View((h, w), (0, 0, w, h), (out_h, out_w), tuple(range(t)))
             out.intrinsics = resize.intrinsics(out.video_intrinsics)
         elif stage == "points":
             stride = point_stride or max(1, int(min(h / out_h, w / out_w)))
-            cloud = rec.point_cloud(stride=stride, min_confidence=min_confidence)
+            cloud = rec.point_cloud(stride=stride)
+            _check_something_left(cloud.confidence, min_confidence, "point")
+            if min_confidence is not None:
+                cloud = cloud.filtered(cloud.confidence >= min_confidence)
             out.points, out.point_colors, out.point_confidence = cloud.points, cloud.colors, cloud.confidence
             out.point_frames, out.point_pixels = cloud.frames, cloud.pixels
         elif stage == "tracks":
@@ -237,6 +258,38 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
         elif stage == "dense":
             out.dense = _dense_arrays(rec.dense_tracks(dense_size), out.cam_to_world)
     return out
+
+
+CAMERA_CHOICES = ("auto", "single", "per-frame")
+ZOOM_SPREAD = 1.15  # "auto": per-frame cameras when the 90th / 10th percentile focal lengths differ more
+
+
+def choose_camera_model(rec, square_pixels: bool = True, spread: float = ZOOM_SPREAD) -> str:
+    """"single" when the per-frame focal lengths agree (90th / 10th percentile within ``spread``), else
+    "per-frame" (a zoom), with a one-line notice. Costs no queries: the camera grid is cached."""
+    per_frame = rec.cameras(camera="per-frame", square_pixels=square_pixels).intrinsics[:, 0, 0]
+    low, high = np.percentile(per_frame, [10, 90])
+    if low > 0 and high / low <= spread:
+        return "single"
+    print(f"d4rt: the per-frame focal lengths range from {low:.0f} to {high:.0f} px (10th-90th percentile), so each "
+          "frame keeps its own camera; --camera single forces one", file=sys.stderr)
+    return "per-frame"
+
+
+def _check_something_left(confidence: np.ndarray, min_confidence: float | None, what: str) -> None:
+    """An empty output is an error, not an empty file: say what range the confidences have."""
+    if min_confidence is None or not confidence.size:
+        return
+    finite = confidence[np.isfinite(confidence)]
+    if not (finite >= min_confidence).any():
+        if not finite.size:
+            found = "all non-finite"
+        elif finite.min() == finite.max():
+            found = f"all {finite.min():.3g}"
+        else:
+            found = f"between {finite.min():.3g} and {finite.max():.3g}"
+        raise UserError(f"no {what} has confidence >= {min_confidence:g} (this reconstruction's confidences are "
+                        f"{found}); lower --min-confidence")
 
 
 def _dense_size(rec, dense_resolution) -> tuple[int, int]:
@@ -265,20 +318,22 @@ def _rate(stamps: np.ndarray) -> float:
     return 1.0 / float(np.median(steps)) if len(steps) and np.median(steps) > 0 else DEFAULT_FPS
 
 
-def save(rec, directory: str | Path, formats="all", *, progress: bool = False, **options) -> list[Path]:
+def save(rec, directory: str | Path, formats="all", *, overwrite: bool = False, progress: bool = False,
+         **options) -> list[Path]:
     """Decode and write the chosen formats (names in FORMATS, "all", or a comma-separated string) into
-    ``directory``; ``options`` go to :func:`compute_outputs`. Returns the paths written."""
+    ``directory`` (new or empty; ``overwrite``: its old contents are replaced as a whole, atomically);
+    ``options`` go to :func:`compute_outputs`. Returns the paths written."""
     names = parse_formats(formats)
-    directory = check_output_dir(directory)
+    directory = check_output_dir(directory, overwrite)
     outputs = compute_outputs(rec, names, progress=progress, **options)
-    return write_outputs(outputs, directory, names, progress=progress)
+    return write_outputs(outputs, directory, names, overwrite=overwrite, progress=progress)
 
 
-def write_outputs(out: ReconstructionOutputs, directory: str | Path, formats, progress: bool = False,
-                  title: str | None = None) -> list[Path]:
+def write_outputs(out: ReconstructionOutputs, directory: str | Path, formats, *, overwrite: bool = False,
+                  progress: bool = False, title: str | None = None) -> list[Path]:
     """Write already-decoded outputs (atomically: see the module docstring)."""
     names = parse_formats(formats)
-    directory = check_output_dir(directory)
+    directory = check_output_dir(directory, overwrite)
     title = title or directory.name
     written = []
     with _staging(directory) as stage:
@@ -353,22 +408,24 @@ _WRITERS = {"npz": _write_npz, "depth": _write_depth, "depth-video": _write_dept
 
 @contextmanager
 def _staging(directory: Path):
-    """A fresh hidden folder beside ``directory`` (same file system, so moves are renames). On success its
-    entries replace those of the same name in ``directory`` (created if needed); on any error it is
+    """A fresh hidden folder beside ``directory`` (same file system, so moves are renames). On success it
+    becomes ``directory`` (whose old contents, if any, are removed after the swap); on any error it is
     removed and ``directory`` is untouched."""
-    anchor = directory.parent
-    while not anchor.exists():
-        anchor = anchor.parent
-    stage = Path(tempfile.mkdtemp(prefix=f".{directory.name}.partial-", dir=anchor))
+    missing = [p for p in directory.absolute().parents if not p.exists()]  # deepest first
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{directory.name}.partial-", dir=directory.parent))
     try:
         yield stage
-        directory.mkdir(parents=True, exist_ok=True)
-        old = stage / ".replaced"
-        old.mkdir()
-        for entry in sorted(p for p in stage.iterdir() if p != old):
-            target = directory / entry.name
-            if target.exists() or target.is_symlink():
-                os.replace(target, old / entry.name)
-            os.replace(entry, target)
-    finally:
+        old = None
+        if directory.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{directory.name}.old-", dir=directory.parent))
+            os.replace(directory, old / "contents")
+        os.replace(stage, directory)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
         shutil.rmtree(stage, ignore_errors=True)
+        for parent in missing:  # the parent folders this call made
+            with suppress(OSError):
+                parent.rmdir()
+        raise

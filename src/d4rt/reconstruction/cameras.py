@@ -11,18 +11,21 @@ from d4rt.geometry.umeyama import batched_umeyama
 
 
 def intrinsics_from_points(points: np.ndarray, uv: np.ndarray, confidence: np.ndarray, height: int, width: int,
-                           method: str = "median") -> np.ndarray:
-    """Pinhole intrinsics of one frame from points seen in it, in its own camera.
+                           method: str = "median", square: bool = False) -> np.ndarray:
+    """Pinhole intrinsics from points seen in their own frame, in that frame's camera.
 
-    points: (N, 3) camera-frame points of the pixels at normalised positions uv: (N, 2) of the same
-    frame; confidence: (N,) (<= 0 or non-finite: unused). Returns K (3, 3) in pixels for a
-    height x width image.
+    points: (N, 3) camera-frame points of the pixels at normalised positions uv: (N, 2) (of one frame,
+    or of several frames that share one camera); confidence: (N,) (<= 0 or non-finite: unused).
+    Returns K (3, 3) in pixels for a height x width image.
 
     - "median" (the paper's recipe): principal point at the image centre, fx = median of
       z (u - 0.5) / x over the points (and fy likewise), in normalised units, then times W (H). Points
       close to the central column (row) are left out: there the ratio is 0 / 0.
     - "lstsq": least squares of x_pix = fx * X / Z + cx (and y likewise), weighted by confidence:
       exact for an off-centre principal point too (e.g. after a crop).
+
+    square: one focal length for both axes (square pixels, fx = fy), fitted to the x and y
+    observations together; otherwise fx and fy are fitted separately.
     """
     ok = np.isfinite(points).all(1) & np.isfinite(uv).all(1) & np.isfinite(confidence) & (confidence > 0)
     ok &= points[:, 2] > 0
@@ -30,23 +33,47 @@ def intrinsics_from_points(points: np.ndarray, uv: np.ndarray, confidence: np.nd
     if len(p) < 4:
         raise UserError(f"too few valid points ({len(p)}) to estimate intrinsics")
     a, b = p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]
+    x_pix, y_pix = uv[:, 0] * width - 0.5, uv[:, 1] * height - 0.5
     if method == "median":
-        fx = _median_ratio(uv[:, 0] - 0.5, a) * width
-        fy = _median_ratio(uv[:, 1] - 0.5, b) * height
+        fx_all = _focal_ratios(uv[:, 0] - 0.5, a) * width
+        fy_all = _focal_ratios(uv[:, 1] - 0.5, b) * height
+        if square:
+            fx = fy = _median_focal(np.concatenate([fx_all, fy_all]))
+        else:
+            fx, fy = _median_focal(fx_all), _median_focal(fy_all)
         cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
     elif method == "lstsq":
-        fx, cx = _weighted_line(a, uv[:, 0] * width - 0.5, c)
-        fy, cy = _weighted_line(b, uv[:, 1] * height - 0.5, c)
+        if square:
+            fx, cx, cy = _weighted_square_fit(a, b, x_pix, y_pix, c)
+            fy = fx
+        else:
+            fx, cx = _weighted_line(a, x_pix, c)
+            fy, cy = _weighted_line(b, y_pix, c)
     else:
         raise UserError(f"intrinsics method must be 'median' or 'lstsq', got {method!r}")
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
-def _median_ratio(offset: np.ndarray, ratio: np.ndarray, min_offset: float = 0.05) -> float:
+def _focal_ratios(offset: np.ndarray, ratio: np.ndarray, min_offset: float = 0.05) -> np.ndarray:
+    """offset / ratio (a normalised focal length) for the points far enough from the centre line."""
     keep = (np.abs(offset) > min_offset) & (np.abs(ratio) > 1e-9)
-    if not keep.any():
+    return offset[keep] / ratio[keep]
+
+
+def _median_focal(values: np.ndarray) -> float:
+    if not len(values):
         raise UserError("no points far enough from the image centre to estimate the focal length")
-    return float(np.median(offset[keep] / ratio[keep]))
+    return float(np.median(values))
+
+
+def _weighted_square_fit(a: np.ndarray, b: np.ndarray, x: np.ndarray, y: np.ndarray,
+                         w: np.ndarray) -> tuple[float, float, float]:
+    """f, cx, cy of the weighted least-squares fit x = f a + cx, y = f b + cy (one focal length)."""
+    sw = np.sqrt(np.concatenate([w, w]))
+    zeros, ones = np.zeros_like(a), np.ones_like(a)
+    design = np.concatenate([np.stack([a, ones, zeros], 1), np.stack([b, zeros, ones], 1)]) * sw[:, None]
+    (f, cx, cy), *_ = np.linalg.lstsq(design, np.concatenate([x, y]) * sw, rcond=None)
+    return float(f), float(cx), float(cy)
 
 
 def _weighted_line(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[float, float]:

@@ -32,6 +32,9 @@ from d4rt.reconstruction.sources import as_source
 KEYS = ("points", "uv", "visibility", "confidence")
 
 
+# How many pinhole cameras the intrinsics recipe fits: one per frame (the paper) or one for the video.
+CAMERA_MODELS = ("single", "per-frame")
+
 # Points per side of the coarse grid of the camera recipe and of window alignment (paper Sec. 2.1).
 DEFAULT_GRID = 12
 
@@ -141,8 +144,9 @@ class Reconstruction:
     def depth(self, resolution: tuple[int, int] | str | None = None) -> Depth:
         """Depth of every frame: all pixels with t_src = t_tgt = t_cam = t; keep z.
 
-        resolution: None (the input video's own size), "encoder" (the answerer's encoder input, if it
-        has one) or (H, W): queries are continuous, so any size works (App. C).
+        resolution: None (the input video's own size), "encoder" (about the answerer's encoder input's
+        pixel count at the video's aspect ratio, see :meth:`output_size`) or (H, W): queries are
+        continuous, so any size works (App. C).
         Returns Depth(depth (T, H, W), confidence (T, H, W)), float32.
         """
         h, w = self.output_size(resolution)
@@ -187,17 +191,23 @@ class Reconstruction:
                 c2w[f] = _similarity_times_pose(sim, poses[j])
         return per_frame, c2w
 
-    def cameras(self, intrinsics=None, method: str = "median", reference_frame: int = 0) -> Cameras:
+    def cameras(self, intrinsics=None, method: str = "median", reference_frame: int = 0, camera: str = "per-frame",
+                square_pixels: bool = False) -> Cameras:
         """Intrinsics and camera-to-world poses of every frame, the world being camera ``reference_frame``.
 
         Intrinsics: from a grid of points of frame i seen in camera i (t_src = t_tgt = t_cam = i), with
         the paper's pinhole-median recipe (principal point at the image centre) or a least-squares fit
         of fx, fy, cx, cy (``method="lstsq"``); known intrinsics ((3, 3) or (T, 3, 3), pixels of the
-        input video) replace the estimate. Poses: the same grid queried as (i, i, i) and (i, i, r) is one
-        set of points at one time in two cameras, so moving objects cannot corrupt the rigid Umeyama
-        fit between them (r = the window's first frame; windows are then chained by their Sim(3)).
+        input video) replace the estimate. camera="per-frame" (the paper's recipe) fits each frame on its
+        own; camera="single" fits one camera to the grid points of every frame together (a video shot
+        without zooming: steadier, and what splatting and MVS tools expect). square_pixels: fx = fy.
+        Poses: the same grid queried as (i, i, i) and (i, i, r) is one set of points at one time in two
+        cameras, so moving objects cannot corrupt the rigid Umeyama fit between them (r = the window's
+        first frame; windows are then chained by their Sim(3)).
         """
         self._check_frame(reference_frame, "reference_frame")
+        if camera not in CAMERA_MODELS:
+            raise UserError(f"camera must be one of {', '.join(CAMERA_MODELS)}, got {camera!r}")
         t = self.num_frames
         per_frame, c2w = self._camera_grid
         if intrinsics is not None:
@@ -206,10 +216,16 @@ class Reconstruction:
                 k_all = np.broadcast_to(k_all, (t, 3, 3)).copy()
             if k_all.shape != (t, 3, 3) or not np.isfinite(k_all).all():
                 raise UserError(f"intrinsics must be finite (3, 3) or ({t}, 3, 3), got shape {k_all.shape}")
+        elif camera == "single":
+            uv = np.tile(self._grid_uv(), (t, 1))
+            points = np.concatenate([f["points"] for f in per_frame])
+            confidence = np.concatenate([f["confidence"] for f in per_frame])
+            k = intrinsics_from_points(points, uv, confidence, self.height, self.width, method, square_pixels)
+            k_all = np.broadcast_to(k, (t, 3, 3)).copy()
         else:
             uv = self._grid_uv()
-            k_all = np.stack([intrinsics_from_points(f["points"], uv, f["confidence"], self.height, self.width, method)
-                              for f in per_frame])
+            k_all = np.stack([intrinsics_from_points(f["points"], uv, f["confidence"], self.height, self.width, method,
+                                                     square_pixels) for f in per_frame])
         return Cameras(k_all, invert_rigid(c2w[reference_frame]) @ c2w, reference_frame)
 
     def point_cloud(self, reference_frame: int = 0, stride: int = 1, min_confidence: float | None = None,
@@ -423,14 +439,18 @@ class Reconstruction:
         return self._camera_grid[1][frame]
 
     def output_size(self, resolution) -> tuple[int, int]:
-        """(H, W) of an output resolution: None = the input video's, "encoder" = the answerer's encoder
-        input, or an explicit (H, W)."""
+        """(H, W) of an output resolution: None = the input video's, "encoder" = as many pixels as the
+        answerer's encoder input with the input video's aspect ratio (a 2.35:1 clip and a 64x64 encoder
+        give 42x98, not 64x64: the encoder's square is a resize, not the scene's shape), or an explicit
+        (H, W)."""
         if resolution is None:
             return self.height, self.width
         if resolution == "encoder":
             if self.source.encoder_size is None:
                 raise UserError("this answerer has no encoder resolution; pass (height, width) instead")
-            return self.source.encoder_size
+            pixels = self.source.encoder_size[0] * self.source.encoder_size[1]
+            aspect = self.width / self.height
+            return max(1, round(np.sqrt(pixels / aspect))), max(1, round(np.sqrt(pixels * aspect)))
         if (not isinstance(resolution, (tuple, list)) or len(resolution) != 2
                 or not all(isinstance(v, (int, np.integer)) and v > 0 for v in resolution)):
             raise UserError(f"resolution must be None, 'encoder' or (height, width) positive ints, got {resolution!r}")

@@ -42,6 +42,11 @@ class PointCloud:
     pixels: np.ndarray
     reference_frame: int = 0
 
+    def filtered(self, keep: np.ndarray) -> PointCloud:
+        """The points where ``keep (M,)`` is True."""
+        return PointCloud(self.points[keep], self.colors[keep], self.confidence[keep], self.frames[keep],
+                          self.pixels[keep], self.reference_frame)
+
 
 @dataclass
 class Tracks:
