@@ -82,7 +82,9 @@ def check_outputs(out: Path, t: int, h: int, w: int, depth_size: tuple[int, int]
     assert {"points", "cameras"} <= set(scene.geometry)
     pycolmap = pytest.importorskip("pycolmap")
     model = pycolmap.Reconstruction(str(out / "colmap" / "sparse" / "0"))
-    assert model.num_images() == t and model.num_points3D() == m
+    # Random weights: few or no tracks reproject consistently (the oracle's model is checked in tests/io).
+    assert model.num_images() == t and model.num_points3D() <= m
+    assert all(p.track.length() >= 2 for p in model.points3D.values())  # multi-view points only
     assert len(list((out / "colmap" / "images").glob("*.png"))) == t
     rows = [line.split() for line in (out / "trajectory_tum.txt").read_text().splitlines() if line[0] != "#"]
     assert len(rows) == t and all(len(r) == 8 for r in rows)

@@ -11,7 +11,7 @@ import numpy as np
 from tqdm import tqdm
 
 from d4rt.errors import UserError
-from d4rt.io.exports import CAMERA_CHOICES, FORMATS, ON_REQUEST
+from d4rt.io.exports import CAMERA_CHOICES, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST
 
 
 def register(subparsers) -> None:
@@ -62,6 +62,10 @@ def register(subparsers) -> None:
                               "choose from. A threshold that leaves nothing is an error that prints the range")
     outputs.add_argument("--point-stride", type=int, default=None, metavar="N",
                          help="point cloud from every n-th pixel (default: as dense as the depth maps)")
+    outputs.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, metavar="N",
+                         help=f"at most N points in the COLMAP model (default: {DEFAULT_MAX_POINTS:,}): confident pixels "
+                              "spread evenly over the scene, each tracked through the video and kept where seen in "
+                              "2 or more frames")
     outputs.add_argument("--tracks", type=int, default=16, metavar="N",
                          help="track an N x N grid of points (default: 16; 0: no tracks)")
     outputs.add_argument("--track-frame", type=int, default=0, metavar="F",
@@ -132,7 +136,7 @@ class EncodeProgress:
 LARGE_QUERIES = 20_000_000  # above this many decoded queries, a one-line notice before the work starts
 
 
-def describe_work(rec, formats, resolution, point_stride: int | None, track_grid: int) -> str:
+def describe_work(rec, formats, resolution, point_stride: int | None, track_grid: int, max_points: int) -> str:
     """One line, printed before any decoding: the output sizes and about how many queries they cost
     (the depth maps and the point cloud decode one query per output pixel, tracks one per point and
     frame), with a notice and the cheaper options when that is a lot."""
@@ -144,7 +148,8 @@ def describe_work(rec, formats, resolution, point_stride: int | None, track_grid
     stride = point_stride or max(1, int(min(rec.height / out_h, rec.width / out_w)))
     counts = {"depth": t * out_h * out_w if "depth" in needs else 0,
               "points": t * -(-rec.height // stride) * -(-rec.width // stride) if "points" in needs else 0,
-              "tracks": track_grid * track_grid * t if "tracks" in needs else 0}
+              "tracks": track_grid * track_grid * t if "tracks" in needs else 0,
+              "colmap": max_points * t if "colmap-points" in needs else 0}
     total = sum(counts.values())
     parts = []
     if counts["depth"]:
@@ -153,6 +158,8 @@ def describe_work(rec, formats, resolution, point_stride: int | None, track_grid
         parts.append("point cloud from every pixel" if stride == 1 else f"point cloud from 1 pixel in {stride}x{stride}")
     if counts["tracks"]:
         parts.append(f"{track_grid}x{track_grid} tracks")
+    if counts["colmap"]:
+        parts.append(f"up to {max_points:,} COLMAP points")
     line = f"outputs: {', '.join(parts) or 'cameras only'}: about {total / 1e6:.1f}M queries to decode"
     if total > LARGE_QUERIES:
         line += (" - a lot for this machine; --resolution encoder, --point-stride N or --outputs narrow it, "
@@ -188,11 +195,11 @@ def run(args) -> int:
         # What model.reconstruct(video, window=, overlap=) builds, with a progress bar on the encoder.
         source = EncodeProgress(ModelSource(model, frames.rgb, max_window=args.window), bar)
         rec = Reconstruction(source, frames.rgb, window=args.window, overlap=args.overlap, progress=True)
-        print(describe_work(rec, formats, resolution, args.point_stride, args.tracks))
+        print(describe_work(rec, formats, resolution, args.point_stride, args.tracks, args.max_points))
         paths = rec.save(out_dir, formats, overwrite=args.overwrite, resolution=resolution, intrinsics=intrinsics,
                          camera=args.camera, square_pixels=not args.non_square_pixels,
                          min_confidence=args.min_confidence, point_stride=args.point_stride, track_grid=args.tracks,
-                         track_frame=args.track_frame, dense_resolution=dense_resolution,
+                         track_frame=args.track_frame, dense_resolution=dense_resolution, max_points=args.max_points,
                          timestamps=frames.timestamps if frames.has_clock else None,
                          fps=frames.fps, progress=True)
     print(f"wrote {out_dir}/: {', '.join(p.name + ('/' if p.is_dir() else '') for p in paths)}")

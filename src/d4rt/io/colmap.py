@@ -14,23 +14,56 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from d4rt.geometry.transforms import invert_rigid, rotation_to_quaternion
+from d4rt.geometry.camera import project
+from d4rt.geometry.transforms import apply_transform, invert_rigid, rotation_to_quaternion
 
 PINHOLE = 1  # COLMAP camera model id: params fx, fy, cx, cy
 _POINT2D = np.dtype([("x", "<f8"), ("y", "<f8"), ("point3D_id", "<i8")])
-_POINT3D = np.dtype([("id", "<u8"), ("xyz", "<f8", 3), ("rgb", "u1", 3), ("error", "<f8"), ("track_length", "<u8"),
-                     ("image_id", "<i4"), ("point2D_idx", "<i4")])
+
+
+def multiview_points(world: np.ndarray, uv: np.ndarray, visibility: np.ndarray, sources: np.ndarray,
+                     intrinsics: np.ndarray, cam_to_world: np.ndarray, height: int, width: int,
+                     max_error: float | None = None) -> dict:
+    """COLMAP points from 3D tracks: each track's position at its source frame, observed at its 2D track
+    position in every frame where it is visible, inside the image, and where that position reprojects
+    within ``max_error`` pixels (default: 1% of the longer image side) - the filter COLMAP itself applies.
+    A moving point is so one 3D point only while it stays put, and a poorly tracked one is dropped.
+
+    world: (N, T, 3) track positions in the world; uv: (N, T, 2) normalised 2D positions (the observed
+    pixels); visibility: (N, T); sources: (N,) source frames; intrinsics (T, 3, 3), cam_to_world
+    (T, 4, 4); height, width: of the frames. Tracks observed in fewer than 2 frames are dropped.
+    Returns the kept track indices ``index (P,)``, ``xyz (P, 3)``, the observations ``obs_point (K,)``
+    (into the kept points), ``obs_frame (K,)``, ``obs_xy (K, 2)`` OpenCV pixels, and ``error (P,)`` each
+    point's mean reprojection error in pixels (xyz through each observing camera vs. its observation).
+    """
+    n = len(world)
+    max_error = 0.01 * max(height, width) if max_error is None else max_error
+    xyz = world[np.arange(n), sources]
+    xy = uv * [width, height] - 0.5
+    projected, z = project(apply_transform(invert_rigid(cam_to_world)[None], xyz[:, None]), intrinsics[None])
+    residual = np.linalg.norm(projected - xy, axis=-1)
+    inside = np.all((uv >= 0) & (uv <= 1), axis=-1)
+    with np.errstate(invalid="ignore"):
+        seen = (visibility > 0.5) & inside & (z > 0) & (residual <= max_error)
+    seen &= np.isfinite(xyz).all(-1)[:, None]
+    keep = np.nonzero(seen.sum(1) >= 2)[0]
+    rows, frames = np.nonzero(seen[keep])
+    error = np.bincount(rows, residual[keep][rows, frames], len(keep)) / np.maximum(np.bincount(rows, minlength=len(keep)), 1)
+    return {"index": keep, "xyz": xyz[keep], "obs_point": rows, "obs_frame": frames,
+            "obs_xy": xy[keep][rows, frames], "error": error}
 
 
 def write_colmap(directory: str | Path, rgb: np.ndarray, intrinsics: np.ndarray, cam_to_world: np.ndarray,
-                 points: np.ndarray, colors: np.ndarray, frames: np.ndarray, pixels: np.ndarray) -> Path:
+                 xyz: np.ndarray, colors: np.ndarray, obs_point: np.ndarray, obs_frame: np.ndarray,
+                 obs_xy: np.ndarray, error: np.ndarray) -> Path:
     """Write a COLMAP model of every frame.
 
     rgb: (T, H, W, 3) uint8 frames (written as ``images/000000.png`` ...); intrinsics: (T, 3, 3) pixels
-    (OpenCV centres); cam_to_world: (T, 4, 4); points: (M, 3) world points, each observed once, in
-    frame ``frames (M,)`` at OpenCV pixel ``pixels (M, 2)``; colors: (M, 3) uint8. One shared PINHOLE
-    camera when every frame has the same intrinsics, else one per frame. Image i has id i + 1, point j
-    has id j + 1; the reprojection error is not known and is written as 0.
+    (OpenCV centres); cam_to_world: (T, 4, 4); xyz: (P, 3) world points, colors: (P, 3) uint8, error:
+    (P,) mean reprojection error in pixels; their observations: point ``obs_point (K,)`` seen in frame
+    ``obs_frame (K,)`` at OpenCV pixel ``obs_xy (K, 2)`` (see :func:`multiview_points`). One shared
+    PINHOLE camera when every frame has the same intrinsics, else one per frame. Image i has id i + 1,
+    point j has id j + 1.
     """
     directory = Path(directory)
     sparse = directory / "sparse" / "0"
@@ -53,26 +86,33 @@ def write_colmap(directory: str | Path, rgb: np.ndarray, intrinsics: np.ndarray,
 
     world_to_cam = invert_rigid(cam_to_world)
     quats = rotation_to_quaternion(world_to_cam[:, :3, :3])[:, [3, 0, 1, 2]]  # COLMAP stores (w, x, y, z)
-    order = np.argsort(frames, kind="stable")
-    starts = np.searchsorted(frames[order], np.arange(t + 1))
-    point2d_idx = np.empty(len(points), dtype=np.int32)
+    order = np.lexsort((obs_point, obs_frame))  # observations grouped by image
+    starts = np.searchsorted(obs_frame[order], np.arange(t + 1))
+    obs_index = np.empty(len(obs_point), dtype=np.int32)  # each observation's index in its image
     with open(sparse / "images.bin", "wb") as f:
         f.write(np.uint64(t).tobytes())
         for i in range(t):
             mine = order[starts[i]:starts[i + 1]]
-            point2d_idx[mine] = np.arange(len(mine))
+            obs_index[mine] = np.arange(len(mine))
             f.write(np.array([i + 1], dtype="<i4").tobytes())
             f.write(np.concatenate([quats[i], world_to_cam[i, :3, 3]]).astype("<f8").tobytes())
             f.write(np.array([camera_of[i]], dtype="<i4").tobytes() + names[i].encode() + b"\0")
             obs = np.empty(len(mine), dtype=_POINT2D)
-            obs["x"], obs["y"] = pixels[mine, 0] + 0.5, pixels[mine, 1] + 0.5
-            obs["point3D_id"] = mine + 1
+            obs["x"], obs["y"] = obs_xy[mine, 0] + 0.5, obs_xy[mine, 1] + 0.5
+            obs["point3D_id"] = obs_point[mine] + 1
             f.write(np.uint64(len(mine)).tobytes() + obs.tobytes())
 
-    records = np.zeros(len(points), dtype=_POINT3D)
-    records["id"] = np.arange(1, len(points) + 1)
-    records["xyz"], records["rgb"], records["track_length"] = points, colors, 1
-    records["image_id"], records["point2D_idx"] = frames + 1, point2d_idx
+    by_point = np.argsort(obs_point, kind="stable")
+    track_length = np.bincount(obs_point, minlength=len(xyz))
     with open(sparse / "points3D.bin", "wb") as f:
-        f.write(np.uint64(len(points)).tobytes() + records.tobytes())
+        f.write(np.uint64(len(xyz)).tobytes())
+        track_starts = np.concatenate([[0], np.cumsum(track_length)])
+        for j in range(len(xyz)):
+            mine = by_point[track_starts[j]:track_starts[j + 1]]
+            f.write(np.array([j + 1], dtype="<u8").tobytes() + np.asarray(xyz[j], dtype="<f8").tobytes()
+                    + np.asarray(colors[j], dtype="u1").tobytes() + np.array([error[j]], dtype="<f8").tobytes()
+                    + np.array([len(mine)], dtype="<u8").tobytes())
+            pairs = np.empty(len(mine), dtype=[("image_id", "<i4"), ("point2D_idx", "<i4")])
+            pairs["image_id"], pairs["point2D_idx"] = obs_frame[mine] + 1, obs_index[mine]
+            f.write(pairs.tobytes())
     return directory

@@ -23,7 +23,8 @@ from tqdm import tqdm
 from d4rt.errors import UserError
 from d4rt.geometry.transforms import apply_transform
 from d4rt.geometry.view import View
-from d4rt.io.colmap import write_colmap
+from d4rt.geometry.voxel import voxel_subsample
+from d4rt.io.colmap import multiview_points, write_colmap
 from d4rt.io.depth_png import write_depth_pngs
 from d4rt.io.glb import write_glb
 from d4rt.io.ply import write_ply
@@ -58,7 +59,7 @@ FORMAT_NEEDS = {
     "depth-video": {"depth"},
     "ply": {"points"},
     "glb": {"points", "cameras"},
-    "colmap": {"points", "cameras"},
+    "colmap": {"points", "cameras", "colmap-points"},
     "tum": {"cameras"},
     "tracks-video": {"tracks", "cameras"},
     "rerun": {"depth", "cameras", "points", "tracks"},
@@ -66,6 +67,9 @@ FORMAT_NEEDS = {
     "dense-tracks": {"dense", "cameras"},
 }
 DEFAULT_FPS = 10.0  # for the videos and the viewer when the input has no clock
+# Points of the COLMAP model: each is tracked through the whole video (T queries), so this bounds both
+# the file and the cost; 3D Gaussian splatting starts well from a few tens of thousands.
+DEFAULT_MAX_POINTS = 50_000
 
 
 @dataclass
@@ -106,6 +110,7 @@ class ReconstructionOutputs:
     track_confidence: np.ndarray | None = None
     track_uv: np.ndarray | None = None
     dense: dict | None = None  # the arrays of dense_tracks.npz (written by that format alone)
+    colmap: dict | None = None  # the multi-view points of the COLMAP model (io.colmap.multiview_points, colors)
 
     @property
     def num_frames(self) -> int:
@@ -177,8 +182,8 @@ def check_output_dir(directory: str | Path, overwrite: bool = False) -> Path:
 def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, camera: str = "auto",
                     square_pixels: bool = True, min_confidence: float | None = None,
                     point_stride: int | None = None, track_grid: int = 16, track_frame: int = 0,
-                    dense_resolution=None, timestamps=None, fps: float | None = None,
-                    progress: bool = False) -> ReconstructionOutputs:
+                    dense_resolution=None, max_points: int = DEFAULT_MAX_POINTS, timestamps=None,
+                    fps: float | None = None, progress: bool = False) -> ReconstructionOutputs:
     """Decode what ``formats`` need from a :class:`d4rt.reconstruction.Reconstruction`.
 
     resolution: depth maps at None (the input's size, continuous queries), "encoder" or (H, W).
@@ -195,7 +200,10 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     pixels of frame ``track_frame`` (0: no tracks). dense_resolution: the dense-tracking grid, (H, W),
     "encoder" or "original" (the input's size); None: the encoder's input size where the model has one
     (the input's size for an oracle): every pixel of a full-size video is rarely what is wanted, and
-    costs T * H * W tracks. timestamps: (T,) seconds (default: frame numbers);
+    costs T * H * W tracks. max_points: at most this many points in the COLMAP model: pixels of the
+    point cloud, one per voxel (the most confident), each tracked through the video in the world
+    and kept where seen in 2 or more frames (:func:`d4rt.io.colmap.multiview_points`).
+    timestamps: (T,) seconds (default: frame numbers);
     fps: for the videos and the viewer (default: from the timestamps, else 10).
     """
     t, h, w = rec.video.shape[:3]
@@ -208,6 +216,8 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
         raise UserError(f"the track grid must be >= 0 points per side, got {track_grid}")
     if not 0 <= track_frame < t:
         raise UserError(f"the track frame must be in [0, {t - 1}], got {track_frame}")
+    if max_points < 1:
+        raise UserError(f"the maximum number of COLMAP points must be >= 1, got {max_points}")
     if point_stride is not None and point_stride < 1:
         raise UserError(f"the point stride must be >= 1, got {point_stride}")
     stamps = np.arange(t, dtype=np.float64) if timestamps is None else np.asarray(timestamps, dtype=np.float64)
@@ -220,7 +230,7 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
         dense_size = _dense_size(rec, dense_resolution)
     if "depth" in needs:
         needs.add("cameras")  # the depth maps' intrinsics
-    stages = [s for s in ("cameras", "depth", "points", "tracks", "dense") if s in needs]
+    stages = [s for s in ("cameras", "depth", "points", "tracks", "colmap-points", "dense") if s in needs]
     bar = tqdm(stages, desc="query", unit="stage", disable=not progress)
     for stage in bar:
         bar.set_postfix_str(stage)
@@ -255,6 +265,8 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
             else:
                 out.tracks, out.track_uv = np.zeros((0, t, 3)), np.zeros((0, t, 2))
                 out.track_visibility, out.track_confidence = np.zeros((0, t)), np.zeros((0, t))
+        elif stage == "colmap-points":
+            out.colmap = _colmap_points(rec, out, max_points)
         elif stage == "dense":
             out.dense = _dense_arrays(rec.dense_tracks(dense_size), out.cam_to_world)
     return out
@@ -290,6 +302,26 @@ def _check_something_left(confidence: np.ndarray, min_confidence: float | None, 
             found = f"between {finite.min():.3g} and {finite.max():.3g}"
         raise UserError(f"no {what} has confidence >= {min_confidence:g} (this reconstruction's confidences are "
                         f"{found}); lower --min-confidence")
+
+
+def _colmap_points(rec, out: ReconstructionOutputs, max_points: int) -> dict:
+    """Multi-view points for the COLMAP model: an evenly spread, confident subset of the point cloud,
+    each pixel tracked through the video in the world (camera 0)."""
+    if not len(out.points):
+        return multiview_points(np.zeros((0, rec.num_frames, 3)), np.zeros((0, rec.num_frames, 2)),
+                                np.zeros((0, rec.num_frames)), np.zeros(0, dtype=np.int64), out.video_intrinsics,
+                                out.cam_to_world, rec.height, rec.width) | {"colors": np.zeros((0, 3), np.uint8)}
+    pick = voxel_subsample(out.points, out.point_confidence, max_points)
+    sources = out.point_frames[pick]
+    starts = np.concatenate([sources[:, None].astype(np.float64), out.point_pixels[pick].astype(np.float64)], 1)
+    tracks = rec.tracks(starts, frame="world")
+    found = multiview_points(tracks.points, tracks.uv, tracks.visibility, sources, out.video_intrinsics,
+                             out.cam_to_world, rec.height, rec.width)
+    if len(found["index"]) < len(pick) / 2:
+        print(f"d4rt: {len(found['index']):,} of {len(pick):,} tracked points were seen consistently (reprojecting "
+              f"within {0.01 * max(rec.height, rec.width):.1f} px) in 2 or more frames: the COLMAP model keeps only "
+              "those (the whole cloud is in points.ply)", file=sys.stderr)
+    return found | {"colors": out.point_colors[pick][found["index"]]}
 
 
 def _dense_size(rec, dense_resolution) -> tuple[int, int]:
@@ -344,7 +376,7 @@ def write_outputs(out: ReconstructionOutputs, directory: str | Path, formats, *,
 
 def _write_npz(out: ReconstructionOutputs, stage: Path, title: str) -> Path:
     arrays = {f.name: getattr(out, f.name) for f in fields(out)
-              if f.name not in ("rgb", "fps", "min_confidence", "dense")}
+              if f.name not in ("rgb", "fps", "min_confidence", "dense", "colmap")}
     arrays.update(fps=np.float64(out.fps), video_size=np.array(out.rgb.shape[1:3]),
                   min_confidence=np.float64(np.nan if out.min_confidence is None else out.min_confidence))
     path = stage / "reconstruction.npz"
@@ -370,8 +402,9 @@ def _write_glb(out, stage, title):
 
 
 def _write_colmap(out, stage, title):
-    return write_colmap(stage / "colmap", out.rgb, out.video_intrinsics, out.cam_to_world, out.points,
-                        out.point_colors, out.point_frames, out.point_pixels)
+    c = out.colmap
+    return write_colmap(stage / "colmap", out.rgb, out.video_intrinsics, out.cam_to_world, c["xyz"], c["colors"],
+                        c["obs_point"], c["obs_frame"], c["obs_xy"], c["error"])
 
 
 def _write_tum(out, stage, title):
