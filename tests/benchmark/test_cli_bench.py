@@ -46,7 +46,9 @@ def test_quick_run_writes_every_field_with_sane_values(quick_result):
     assert sorted(counts) == sorted(["60", "24", "10", "1"])
     by_fps = [counts[k] for k in ("60", "24", "10", "1")]
     assert all(isinstance(c, int) and c >= 0 for c in by_fps)
-    assert by_fps == sorted(by_fps) and by_fps[-1] > by_fps[0]  # more tracks at lower FPS
+    # More tracks at lower FPS. Only the 60x apart ends are compared: neighbouring targets (2.4x apart) can
+    # swap on a busy machine, and timings are the benchmark's to report, not a test's to assert.
+    assert by_fps[-1] > by_fps[0]
     sizes = [row["chunk_size"] for row in result["decoder"]["chunks"]]
     assert 256 in sizes and result["default_chunk_size"] in sizes
     assert "RANDOM WEIGHTS" in stdout and "Tab. 3" in stdout

@@ -22,7 +22,7 @@ from PIL import Image
 
 from d4rt.cli import main
 from d4rt.config import D4RTConfig
-from d4rt.io.exports import FORMATS, rerun_available
+from d4rt.io.formats import FORMATS, rerun_available
 from d4rt.io.video import write_video
 from d4rt.model import D4RT
 from d4rt.synthetic import render_clip

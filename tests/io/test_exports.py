@@ -15,7 +15,7 @@ from trimesh.transformations import quaternion_matrix
 from d4rt.errors import UserError
 from d4rt.geometry.camera import pixel_to_uv, unproject_depth
 from d4rt.geometry.transforms import apply_transform, invert_rigid
-from d4rt.io import exports
+from d4rt.io import exports, formats
 from d4rt.io.depth_png import read_depth_png
 from d4rt.synthetic import render_clip
 from d4rt.viz.overlay import project_tracks
@@ -31,10 +31,10 @@ def clip():
 @pytest.fixture(scope="module")
 def saved(clip, tmp_path_factory):
     out = tmp_path_factory.mktemp("exports") / "out"
-    formats = [f for f in exports.FORMATS if f != "rerun" or exports.rerun_available()]
-    paths = clip.reconstruction().save(out, formats, track_grid=GRID, timestamps=np.arange(5) / 12.0, fps=12.0)
+    names = [f for f in exports.FORMATS if f != "rerun" or formats.rerun_available()]
+    paths = clip.reconstruction().save(out, names, track_grid=GRID, timestamps=np.arange(5) / 12.0, fps=12.0)
     assert sorted(p.name for p in paths) == sorted(exports.FORMATS[f].split("/")[0].split(" ")[0].rstrip(",")
-                                                    for f in formats)
+                                                    for f in names)
     with np.load(out / "reconstruction.npz") as npz:
         return out, dict(npz)
 
@@ -308,7 +308,7 @@ def test_format_names_and_missing_rerun(clip, tmp_path, monkeypatch, capsys):
     with pytest.raises(UserError, match="unknown output format"):
         exports.parse_formats("ply,obj")
     assert exports.parse_formats("tum, ply") == ["ply", "tum"]
-    monkeypatch.setattr(exports, "rerun_available", lambda: False)
+    monkeypatch.setattr(formats, "rerun_available", lambda: False)
     with pytest.raises(UserError, match="needs the rerun-sdk package"):
         exports.parse_formats("rerun")
     assert "rerun" not in exports.parse_formats("all")

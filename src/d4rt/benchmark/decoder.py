@@ -4,7 +4,7 @@ gain of sharing the source embedding between queries that differ only in time (3
 from __future__ import annotations
 
 import torch
-from tqdm import tqdm
+from d4rt.progress import progress_bar
 
 from d4rt.benchmark.flops import decoder_flops_per_query
 from d4rt.benchmark.options import BenchOptions
@@ -63,7 +63,7 @@ def bench_decoder(model, scene, options: BenchOptions) -> dict:
     chunks = sorted({*options.chunks, default_chunk, auto})
     rows = []
     with options.autocast():
-        for chunk in tqdm(chunks, desc="decoder chunk sizes", unit="size", disable=not options.progress, leave=False):
+        for chunk in progress_bar(chunks, desc="decoder chunk sizes", unit="size", disable=not options.progress, leave=False):
             def run(cache: bool, chunk=chunk):
                 scene.clear_cache()  # cached: one projection per run, as once per clip
                 return scene.query(queries, chunk_size=chunk, cache_kv=cache)

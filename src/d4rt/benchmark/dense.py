@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 import torch
-from tqdm import tqdm
+from d4rt.progress import progress_bar
 
 from d4rt.benchmark.options import BenchOptions
 from d4rt.benchmark.timing import synchronize
@@ -47,7 +47,7 @@ class ReplayAnswerer:
         self.num_frames = scene.num_frames
         self.model = scene.model  # the recipes read the encoder size from it
         self.position = 0
-        self.bar = tqdm(total=sum(len(q) for q, _ in log), desc="dense tracking with the model", unit="query",
+        self.bar = progress_bar(total=sum(len(q) for q, _ in log), desc="dense tracking with the model", unit="query",
                         unit_scale=True, disable=not progress, leave=False)
 
     def query(self, queries) -> dict:
@@ -68,7 +68,7 @@ def bench_dense(model, options: BenchOptions) -> dict:
     ``dense_size`` squared cells (default: each clip's own resolution)."""
     device = torch.device(options.device)
     rows = []
-    for spec in tqdm(clip_specs()[: options.dense_clips], desc="dense tracking clips", unit="clip",
+    for spec in progress_bar(clip_specs()[: options.dense_clips], desc="dense tracking clips", unit="clip",
                      disable=not options.progress, leave=False):
         clip = render_clip(spec.seed, FRAMES, spec.height, spec.width, **vars(spec.options))
         resolution = (options.dense_size, options.dense_size) if options.dense_size else (clip.height, clip.width)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 import torch
-from tqdm import tqdm
+from d4rt.progress import progress_bar
 
 from d4rt.benchmark.decoder import random_sources, track_queries
 from d4rt.benchmark.options import BenchOptions
@@ -95,7 +95,7 @@ def bench_tracks_at_fps(model, video: torch.Tensor, options: BenchOptions, track
     run = TrackRun(model, video, options)
     run.seconds(1, 1)  # warm-up
     results = {}
-    for fps in tqdm(options.fps_targets, desc="tracks at target FPS", unit="target", disable=not options.progress,
+    for fps in progress_bar(options.fps_targets, desc="tracks at target FPS", unit="target", disable=not options.progress,
                     leave=False):
         results[fps] = max_tracks_at_fps(run, fps, track_queries_per_s, options.tolerance, options.max_trials)
     return results

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
+from d4rt.cli import COMMANDS, parse_size
 
 
 def _chunks(text: str) -> tuple[int, ...]:
@@ -26,7 +27,7 @@ def _chunks(text: str) -> tuple[int, ...]:
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "bench", help="measure speed and memory (encoder, decoder, pose FPS, tracks at FPS, dense tracking)",
+        "bench", help=COMMANDS["bench"],
         description="Measure a model preset with random weights: encoder clips/s, tokens/s, TFLOP/s and MFU; "
                     "decoder queries/s per chunk size with and without the key/value cache; camera-pose FPS; "
                     "the paper's Tab. 3 (most full-video 3D tracks at 60/24/10/1 FPS); dense tracking on "
@@ -39,7 +40,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "the model's max_frames so the clip stays one window)")
     parser.add_argument("--height", type=int, help="frame height in pixels (default: the preset's input size)")
     parser.add_argument("--width", type=int, help="frame width in pixels (default: the preset's input size)")
-    parser.add_argument("--size", type=int, help="square frames: --height and --width at once")
+    parser.add_argument("--size", metavar="WxH", help="frame size, WIDTHxHEIGHT or N for N x N: --height and --width "
+                        "at once")
     parser.add_argument("--queries", type=int, help="random queries per decoder measurement (default 100000)")
     parser.add_argument("--chunks", type=_chunks, help="decoder chunk sizes, comma-separated (default 256,1024,4096; "
                         "256, the preset's default and the memory-derived size are always added)")
@@ -52,13 +54,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="also time COLMAP SfM (pycolmap, the 'eval' extra) on the same clip")
     parser.add_argument("--dense-size", type=int, help="dense-tracking grid side (default: each clip's resolution)")
     parser.add_argument("--pose-grid", type=int, help="points per side of the camera recipe's grid (default: "
-                        "the reconstruction default, 24)")
+                        "the reconstruction default, 12)")
     parser.add_argument("--dense-clips", type=int, help="synthetic-dynamic-v1 clips tracked densely (default 1)")
     parser.add_argument("--tolerance", type=float, help="relative precision of each track count (default 0.02)")
     parser.add_argument("--quick", action="store_true", help="a tiny run for CI: 2 frames of 32x32, 2,048 queries, "
                         "one repeat, a 16x16 dense grid (other options still apply)")
-    parser.add_argument("--json", metavar="PATH", help="write every figure to this JSON file")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.add_argument("-o", "--out", "--json", dest="json", metavar="PATH",
+                        help="write every figure to this JSON file")
     parser.set_defaults(func=run)
 
 
@@ -67,8 +69,7 @@ def options_from_args(args: argparse.Namespace):
 
     if args.size is not None and (args.height is not None or args.width is not None):
         raise UserError("give either --size or --height/--width, not both")
-    height = args.size if args.size is not None else args.height
-    width = args.size if args.size is not None else args.width
+    height, width = parse_size(args.size, "--size") if args.size is not None else (args.height, args.width)
     values = dict(preset=args.preset, device=args.device, dtype=args.dtype, frames=args.frames, height=height,
                   width=width, queries=args.queries, chunks=args.chunks, repeats=args.repeats, threads=args.threads,
                   compile=args.compile, video=args.video, compare_colmap=args.compare_colmap,

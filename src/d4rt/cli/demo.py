@@ -16,6 +16,7 @@ from importlib.resources import files
 from pathlib import Path
 
 import numpy as np
+from d4rt.cli import COMMANDS
 
 SEED = 8
 SYNTHETIC = dict(frames=24, height=120, width=160, environment="room", camera_motion="orbit", articulated=True,
@@ -26,7 +27,7 @@ TUM_FX = 535.4  # published colour-camera focal length of the fr3 sequences, pix
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("demo", help="every output on the bundled samples (no arguments needed)",
+    p = subparsers.add_parser("demo", help=COMMANDS["demo"],
                               description="Reconstruct the bundled samples (a synthetic clip with exact ground "
                                           "truth, and 17 real TUM RGB-D frames), write every output and print "
                                           "their accuracy.")

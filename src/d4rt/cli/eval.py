@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from d4rt.cli import COMMANDS
 
 
 def register(subparsers) -> None:
@@ -11,7 +12,7 @@ def register(subparsers) -> None:
     from d4rt.evaluation.readers import FORMATS
 
     p = subparsers.add_parser(
-        "eval", help="evaluate a checkpoint and baselines on a benchmark",
+        "eval", help=COMMANDS["eval"],
         description="Evaluate D4RT (--checkpoint) and baselines (--baseline) with the field's protocols. "
                     f"Benchmarks: {', '.join(BENCHMARKS)}. The synthetic benchmark is regenerated; the others "
                     "read your copy of the dataset (--data). --data alone evaluates every sequence of a folder. "
@@ -23,7 +24,7 @@ def register(subparsers) -> None:
     p.add_argument("--baseline", action="append", choices=BASELINES, default=None,
                    help="baseline to run beside it (repeatable; default with a checkpoint: oracle and "
                         "constant-depth where the benchmark scores depth)")
-    p.add_argument("--out", type=Path, help="JSON results file (default: ./d4rt-eval-<benchmark>.json)")
+    p.add_argument("-o", "--out", type=Path, help="JSON results file (default: ./d4rt-eval-<benchmark>.json)")
     p.add_argument("--limit", type=int, help="evaluate only the first N sequences")
     p.add_argument("--device", default="cpu", help="torch device for the model")
     p.set_defaults(func=run)

@@ -9,26 +9,32 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
 from d4rt.synthetic.sampling import CAMERA_MOTIONS
+from d4rt.cli import COMMANDS, parse_size
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "generate", help="render synthetic clips with exact ground truth",
+        "generate", help=COMMANDS["generate"],
         description="Render N synthetic clips; clip i uses seed SEED + i and is written to "
                     "OUT/clip_<i>.npz (same arguments, same files, bit for bit).")
-    p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--num-clips", type=int, required=True)
-    p.add_argument("--frames", type=int, default=16)
-    p.add_argument("--height", type=int, default=128)
-    p.add_argument("--width", type=int, default=128)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--environment", choices=["room", "outdoor"], default=None, help="default: random per clip")
-    p.add_argument("--camera-motion", choices=CAMERA_MOTIONS, default=None, help="default: random per clip")
-    p.add_argument("--num-objects", type=int, default=None, help="default: 3 to 8 per clip")
+    p.add_argument("-o", "--out", required=True, help="output directory (clips of the same names are replaced)")
+    p.add_argument("--num-clips", type=int, required=True, help="how many clips to render")
+    p.add_argument("--frames", type=int, default=16, help="frames per clip (default 16)")
+    p.add_argument("--size", metavar="WxH", default=None,
+                   help="frame size, WIDTHxHEIGHT or N for N x N (default 128x128); or --height and --width")
+    p.add_argument("--height", type=int, default=None, help="frame height in pixels (default 128)")
+    p.add_argument("--width", type=int, default=None, help="frame width in pixels (default 128)")
+    p.add_argument("--seed", type=int, default=0, help="seed of clip 0; clip i uses SEED + i (default 0)")
+    p.add_argument("--environment", choices=["room", "outdoor"], default=None,
+                   help="scene kind (default: random per clip)")
+    p.add_argument("--camera-motion", choices=CAMERA_MOTIONS, default=None,
+                   help="how the camera moves (default: random per clip)")
+    p.add_argument("--num-objects", type=int, default=None, help="rigid objects in the scene (default: 3 to 8 "
+                   "per clip)")
     p.add_argument("--fov", type=float, nargs=2, metavar=("LOW", "HIGH"), default=None,
                    help="field-of-view range in degrees across the longer side (default 35 90)")
     p.add_argument("--aspect", type=float, nargs=2, metavar=("LOW", "HIGH"), default=None,
@@ -63,6 +69,11 @@ def clip_size(seed: int, height: int, width: int, aspect: tuple[float, float] | 
 
 
 def run(args) -> int:
+    if args.size is not None and (args.height is not None or args.width is not None):
+        raise UserError("give either --size or --height/--width, not both")
+    if args.size is not None:
+        args.height, args.width = parse_size(args.size, "--size")
+    args.height, args.width = args.height or 128, args.width or 128
     if args.num_clips < 1:
         raise UserError(f"--num-clips must be at least 1, got {args.num_clips}")
     if args.frames < 1:
@@ -97,7 +108,7 @@ def run(args) -> int:
                 "aspect": list(args.aspect) if args.aspect else None, "sizes": [list(s) for s in sizes],
                 "scene_options": {k: list(v) if isinstance(v, tuple) else v for k, v in options.items()},
                 "aa_samples": args.aa_samples}
-    bar = tqdm(total=len(jobs), desc="generate", unit="clip")
+    bar = progress_bar(total=len(jobs), desc="generate", unit="clip")
     if args.workers == 1:
         for job in jobs:
             _render_one(job)

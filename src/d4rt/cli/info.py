@@ -9,11 +9,12 @@ import json
 import torch
 
 from d4rt.config import D4RTConfig
+from d4rt.cli import COMMANDS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "info", help="show a model preset's architecture and parameter counts",
+        "info", help=COMMANDS["info"],
         description="Show the architecture and parameter counts of a model preset or config file.")
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--preset", choices=D4RTConfig.preset_names(), default="tiny",

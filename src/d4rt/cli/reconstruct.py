@@ -8,15 +8,16 @@ from __future__ import annotations
 from contextlib import nullcontext
 
 import numpy as np
-from tqdm import tqdm
+from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
-from d4rt.io.exports import CAMERA_CHOICES, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST
+from d4rt.io.formats import CAMERA_CHOICES, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST
+from d4rt.cli import COMMANDS, parse_size
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "reconstruct", help="reconstruct a video in 4D and write depth, cameras, points, tracks and viewers",
+        "reconstruct", help=COMMANDS["reconstruct"],
         description="Reconstruct a video in 4D with a D4RT model and write the outputs (units and conventions: "
                     "docs/outputs.md).")
     p.add_argument("input", metavar="INPUT",
@@ -94,10 +95,10 @@ def parse_resolution(text: str, option: str = "--resolution"):
     """'original' -> None, 'encoder' -> 'encoder', 'WxH' -> (H, W); a bad value names ``option``."""
     if text in ("original", "encoder"):
         return None if text == "original" else text
-    parts = text.lower().split("x")
-    if len(parts) == 2 and all(p.isdigit() and int(p) > 0 for p in parts):
-        return int(parts[1]), int(parts[0])
-    raise UserError(f"{option} must be 'original', 'encoder' or WIDTHxHEIGHT (e.g. 640x480), got {text!r}")
+    try:
+        return parse_size(text, option)
+    except UserError:
+        raise UserError(f"{option} must be 'original', 'encoder' or WIDTHxHEIGHT (e.g. 640x480), got {text!r}") from None
 
 
 def has_bundled_model() -> bool:
@@ -140,7 +141,7 @@ def describe_work(rec, formats, resolution, point_stride: int | None, track_grid
     """One line, printed before any decoding: the output sizes and about how many queries they cost
     (the depth maps and the point cloud decode one query per output pixel, tracks one per point and
     frame), with a notice and the cheaper options when that is a lot."""
-    from d4rt.io.exports import FORMAT_NEEDS
+    from d4rt.io.formats import FORMAT_NEEDS
 
     needs = set().union(*(FORMAT_NEEDS[f] for f in formats))
     t = rec.num_frames
@@ -168,14 +169,12 @@ def describe_work(rec, formats, resolution, point_stride: int | None, track_grid
 
 
 def run(args) -> int:
-    import torch
+    from d4rt.io.formats import check_output_dir, parse_formats
+    from d4rt.io.frames import FrameRange, check_input, load_frames
 
-    from d4rt.devices import resolve_device
-    from d4rt.io.exports import check_output_dir, parse_formats
-    from d4rt.io.frames import FrameRange, load_frames
-    from d4rt.reconstruction import ModelSource, Reconstruction
-
-    # Every option is checked before any work, so a bad one costs nothing and writes nothing.
+    # Every option is checked before any work (and before torch loads), so a bad one costs nothing and
+    # writes nothing.
+    check_input(args.input)
     intrinsics = parse_intrinsics(args.intrinsics) if args.intrinsics else None
     resolution = parse_resolution(args.resolution)
     dense_resolution = (args.dense_resolution if args.dense_resolution in (None, "original")
@@ -183,6 +182,12 @@ def run(args) -> int:
     formats = parse_formats(args.outputs)
     out_dir = check_output_dir(args.out, args.overwrite)
     selection = FrameRange(args.start, args.end, args.stride, args.max_frames)
+
+    import torch
+
+    from d4rt.devices import resolve_device
+    from d4rt.reconstruction import ModelSource, Reconstruction
+
     device = resolve_device(args.device, "--device")
 
     frames = load_frames(args.input, selection, progress=True)
@@ -191,7 +196,7 @@ def run(args) -> int:
     print(f"d4rt reconstruct: {t} frames of {w}x{h} from {args.input} (source frames {frames.indices[0]}.."
           f"{frames.indices[-1]}, stride {args.stride}) with model '{model.config.name}' on {device}")
     autocast = torch.autocast(device.type, dtype=torch.bfloat16) if args.bf16 else nullcontext()
-    with autocast, tqdm(desc="encode", unit="window", bar_format="{desc}: {n} window encodings [{elapsed}]") as bar:
+    with autocast, progress_bar(desc="encode", unit="window", bar_format="{desc}: {n} window encodings [{elapsed}]") as bar:
         # What model.reconstruct(video, window=, overlap=) builds, with a progress bar on the encoder.
         source = EncodeProgress(ModelSource(model, frames.rgb, max_window=args.window), bar)
         rec = Reconstruction(source, frames.rgb, window=args.window, overlap=args.overlap, progress=True)

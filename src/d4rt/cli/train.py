@@ -8,17 +8,18 @@ import os
 import yaml
 
 from d4rt.errors import UserError
+from d4rt.cli import COMMANDS
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "train", help="train a model from a YAML config (resumable; runs under torchrun too)",
+        "train", help=COMMANDS["train"],
         description="Train D4RT as a config file describes (configs/tiny-cpu.yaml, configs/small-gpu.yaml, "
                     "configs/paper-giant.yaml). Weights land in OUT as model.safetensors + config.json; "
                     "checkpoints in OUT/checkpoints. Several processes: torchrun --nproc_per_node N "
                     "-m d4rt train ...")
     parser.add_argument("--config", required=True, metavar="YAML", help="training config file")
-    parser.add_argument("--out", default="runs/d4rt", metavar="DIR", help="run directory (default: runs/d4rt)")
+    parser.add_argument("-o", "--out", default="runs/d4rt", metavar="DIR", help="run directory (default: runs/d4rt)")
     parser.add_argument("--max-steps", type=int, metavar="N", help="optimiser steps (overrides run.max_steps)")
     parser.add_argument("--resume", action="store_true",
                         help="continue from the newest complete checkpoint in DIR (start afresh if there is none)")

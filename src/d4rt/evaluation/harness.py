@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
 from d4rt.evaluation.benchmarks import Benchmark
@@ -198,7 +198,7 @@ def run_benchmark(benchmark: Benchmark, predictors: list[Predictor], data: Path 
         names = names[:limit]
     rows: dict[str, list[SequenceResult]] = {p.name: [] for p in predictors}
     tasks = set(benchmark.tasks)
-    bar = tqdm(total=len(names) * len(predictors), desc=f"eval {benchmark.name}", unit="run", disable=not progress)
+    bar = progress_bar(total=len(names) * len(predictors), desc=f"eval {benchmark.name}", unit="run", disable=not progress)
     for name in names:
         sequence = benchmark.load(data, name)
         for predictor in predictors:

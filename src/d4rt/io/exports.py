@@ -18,13 +18,16 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
 from d4rt.geometry.transforms import apply_transform
 from d4rt.geometry.view import View
 from d4rt.geometry.voxel import voxel_subsample
 from d4rt.io.colmap import multiview_points, write_colmap
+from d4rt.io.formats import (  # noqa: F401 (FORMATS, ON_REQUEST: part of this module's interface too)
+    CAMERA_CHOICES, DEFAULT_FPS, DEFAULT_MAX_POINTS, FORMAT_NEEDS, FORMATS, ON_REQUEST, ZOOM_SPREAD, check_output_dir,
+    parse_formats)
 from d4rt.io.depth_png import write_depth_pngs
 from d4rt.io.glb import write_glb
 from d4rt.io.ply import write_ply
@@ -34,43 +37,7 @@ from d4rt.viz.colormaps import depth_to_rgb
 from d4rt.viz.frusta import frustum_segments
 from d4rt.viz.html_viewer import write_html
 from d4rt.viz.overlay import draw_tracks, project_tracks, track_colors
-from d4rt.viz.rerun_recording import rerun_available, write_rrd
-
-# Format name -> what it writes (in OUT_DIR), in the order they are written.
-FORMATS = {
-    "npz": "reconstruction.npz",
-    "depth": "depth/000000.png ... (16-bit) + depth/depth_scale.json",
-    "depth-video": "depth.mp4",
-    "ply": "points.ply",
-    "glb": "scene.glb",
-    "colmap": "colmap/images/, colmap/sparse/0/",
-    "tum": "trajectory_tum.txt",
-    "tracks-video": "tracks.mp4",
-    "rerun": "reconstruction.rrd",
-    "html": "viewer.html",
-    "dense-tracks": "dense_tracks.npz",
-}
-# Asked for by name only ("all" leaves them out): dense tracking decodes millions of queries.
-ON_REQUEST = ("dense-tracks",)
-# What each format needs decoded.
-FORMAT_NEEDS = {
-    "npz": {"depth", "cameras", "points", "tracks"},
-    "depth": {"depth"},
-    "depth-video": {"depth"},
-    "ply": {"points"},
-    "glb": {"points", "cameras"},
-    "colmap": {"points", "cameras", "colmap-points"},
-    "tum": {"cameras"},
-    "tracks-video": {"tracks", "cameras"},
-    "rerun": {"depth", "cameras", "points", "tracks"},
-    "html": {"points", "cameras", "tracks"},
-    "dense-tracks": {"dense", "cameras"},
-}
-DEFAULT_FPS = 10.0  # for the videos and the viewer when the input has no clock
-# Points of the COLMAP model: each is tracked through the whole video (T queries), so this bounds both
-# the file and the cost; 3D Gaussian splatting starts well from a few tens of thousands.
-DEFAULT_MAX_POINTS = 50_000
-
+from d4rt.viz.rerun_recording import write_rrd
 
 @dataclass
 class ReconstructionOutputs:
@@ -144,41 +111,6 @@ class ReconstructionOutputs:
         return frustum_segments(self.video_intrinsics, self.cam_to_world, h, w, 0.08 * reach)
 
 
-def parse_formats(formats) -> list[str]:
-    """"all", a comma-separated string or a list of names -> the list of format names (in FORMATS
-    order). "all" is every format but those in ON_REQUEST (dense tracks). With "all", the rerun recording
-    is left out (with a notice) when rerun-sdk is missing; asked for by name, it is an error."""
-    if isinstance(formats, str):
-        names = ([f for f in FORMATS if f not in ON_REQUEST] if formats == "all"
-                 else [f.strip() for f in formats.split(",") if f.strip()])
-        everything = formats == "all"
-    else:
-        names, everything = list(formats), False
-    unknown = [n for n in names if n not in FORMATS]
-    if unknown or not names:
-        raise UserError(f"unknown output format(s) {unknown or names}; choose from all, {', '.join(FORMATS)}")
-    if "rerun" in names and not rerun_available():
-        if not everything:
-            raise UserError("the rerun output needs the rerun-sdk package: pip install 'd4rt[viewer]'")
-        print("d4rt: skipping reconstruction.rrd: rerun-sdk is not installed (pip install 'd4rt[viewer]')",
-              file=sys.stderr)
-        names.remove("rerun")
-    return [n for n in FORMATS if n in names]
-
-
-def check_output_dir(directory: str | Path, overwrite: bool = False) -> Path:
-    """The output folder, checked before any work: it must not exist, be empty, or (``overwrite``) be a
-    folder whose whole contents the new run may replace. Mixing one run's files with another's would
-    leave stale outputs beside fresh ones."""
-    directory = Path(directory)
-    if directory.exists() and not directory.is_dir():
-        raise UserError(f"output {directory} exists and is not a directory")
-    if not overwrite and directory.is_dir() and any(directory.iterdir()):
-        raise UserError(f"output folder {directory} is not empty: pass --overwrite to replace it (overwrite=True "
-                        "in Python), or choose another folder")
-    return directory
-
-
 def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, camera: str = "auto",
                     square_pixels: bool = True, min_confidence: float | None = None,
                     point_stride: int | None = None, track_grid: int = 16, track_frame: int = 0,
@@ -231,7 +163,7 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     if "depth" in needs:
         needs.add("cameras")  # the depth maps' intrinsics
     stages = [s for s in ("cameras", "depth", "points", "tracks", "colmap-points", "dense") if s in needs]
-    bar = tqdm(stages, desc="query", unit="stage", disable=not progress)
+    bar = progress_bar(stages, desc="query", unit="stage", disable=not progress)
     for stage in bar:
         bar.set_postfix_str(stage)
         if stage == "cameras":
@@ -270,10 +202,6 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
         elif stage == "dense":
             out.dense = _dense_arrays(rec.dense_tracks(dense_size), out.cam_to_world)
     return out
-
-
-CAMERA_CHOICES = ("auto", "single", "per-frame")
-ZOOM_SPREAD = 1.15  # "auto": per-frame cameras when the 90th / 10th percentile focal lengths differ more
 
 
 def choose_camera_model(rec, square_pixels: bool = True, spread: float = ZOOM_SPREAD) -> str:
@@ -369,7 +297,7 @@ def write_outputs(out: ReconstructionOutputs, directory: str | Path, formats, *,
     title = title or directory.name
     written = []
     with _staging(directory) as stage:
-        for name in tqdm(names, desc="write", unit="file", disable=not progress):
+        for name in progress_bar(names, desc="write", unit="file", disable=not progress):
             written.append(_WRITERS[name](out, stage, title))
     return [directory / p.relative_to(stage) for p in written]
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 from PIL import Image, UnidentifiedImageError
-from tqdm import tqdm
+from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
 from d4rt.io.video import read_video
@@ -85,6 +85,22 @@ class Frames:
         return self.fps is not None
 
 
+def check_input(path: str | Path) -> Path:
+    """The checks of an input path that need no decoding (it exists, a known kind, not empty): cheap
+    enough to run before anything else."""
+    path = Path(path)
+    if not path.exists():
+        raise UserError(f"{path} does not exist")
+    if not path.is_dir():
+        suffix = path.suffix.lower()
+        if suffix not in VIDEO_SUFFIXES + ARRAY_SUFFIXES:
+            raise UserError(f"{path}: unsupported input type {suffix or '(no extension)'!r}; expected a video "
+                            f"({' '.join(VIDEO_SUFFIXES)}), a folder of images, or an .npy / .npz array")
+        if path.stat().st_size == 0:
+            raise UserError(f"{path} is empty (0 bytes)")
+    return path
+
+
 def load_frames(path: str | Path, frames: FrameRange = FrameRange(), progress: bool = False) -> Frames:
     """Read the selected frames of a video file, an image folder, or an .npy / .npz array.
 
@@ -92,18 +108,11 @@ def load_frames(path: str | Path, frames: FrameRange = FrameRange(), progress: b
     single array). Image folders are read in natural order (``img2`` before ``img10``); their file names
     are used as time stamps when every name is a number (TUM RGB-D layout).
     """
-    path = Path(path)
-    if not path.exists():
-        raise UserError(f"{path} does not exist")
+    path = check_input(path)
     if path.is_dir():
         result = _load_folder(path, frames, progress)
     else:
         suffix = path.suffix.lower()
-        if suffix not in VIDEO_SUFFIXES + ARRAY_SUFFIXES:
-            raise UserError(f"{path}: unsupported input type {suffix or '(no extension)'!r}; expected a video "
-                            f"({' '.join(VIDEO_SUFFIXES)}), a folder of images, or an .npy / .npz array")
-        if path.stat().st_size == 0:
-            raise UserError(f"{path} is empty (0 bytes)")
         result = _load_video(path, frames, progress) if suffix in VIDEO_SUFFIXES else _load_array(path, frames)
     if len(result.rgb) < MIN_FRAMES:
         raise UserError(f"{path} gives {len(result.rgb)} frame(s) ({frames.describe()}); "
@@ -136,7 +145,7 @@ def _load_folder(path: Path, selection: FrameRange, progress: bool) -> Frames:
             raise UserError(f"images in {path} have mixed sizes: {files[i].name} is {size[0]}x{size[1]} "
                             f"but {files[index[0]].name} is {sizes[0][0]}x{sizes[0][1]}")
     rgb = []
-    for i in tqdm(index, desc="decode", unit="frame", disable=not progress):
+    for i in progress_bar(index, desc="decode", unit="frame", disable=not progress):
         try:
             with Image.open(files[i]) as image:
                 rgb.append(np.asarray(image.convert("RGB")))

@@ -43,7 +43,7 @@ def read_video(path: str | Path, selection, progress: bool = False
     Returns (frames: list of (H, W, 3) uint8 RGB, timestamps: list of seconds, fps: the stream's average
     frame rate or None). A file FFmpeg cannot open or decode raises a UserError naming it.
     """
-    from tqdm import tqdm
+    from d4rt.progress import progress_bar
 
     frames, times = [], []
     try:
@@ -53,7 +53,7 @@ def read_video(path: str | Path, selection, progress: bool = False
             stream = container.streams.video[0]
             stream.thread_type = "AUTO"
             fps = float(stream.average_rate) if stream.average_rate else None
-            with tqdm(total=stream.frames or None, desc="decode", unit="frame", disable=not progress) as bar:
+            with progress_bar(total=stream.frames or None, desc="decode", unit="frame", disable=not progress) as bar:
                 for index, frame in enumerate(container.decode(stream)):
                     if selection.done(index, len(frames)):
                         break

@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import Callable
 
 import numpy as np
-from tqdm import tqdm
+from d4rt.progress import progress_bar
 
 
 def occupancy_tracking(ask_tracks: Callable[[np.ndarray], dict], num_frames: int, height: int, width: int,
@@ -35,7 +35,7 @@ def occupancy_tracking(ask_tracks: Callable[[np.ndarray], dict], num_frames: int
     order = (frame_order[:, None] * (height * width) + np.arange(height * width)[None]).reshape(-1)
     parts: dict[str, list[np.ndarray]] = {}
     sources = []
-    bar = tqdm(total=grid.size, desc="dense tracking", unit="cell", disable=not progress)
+    bar = progress_bar(total=grid.size, desc="dense tracking", unit="cell", disable=not progress)
     flat = grid.reshape(-1)
     cursor = 0  # cells before it in ``order`` are all visited
     while True:

@@ -19,7 +19,7 @@ from functools import cached_property
 
 import numpy as np
 import torch
-from tqdm import tqdm
+from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
 from d4rt.geometry.transforms import invert_rigid
@@ -80,7 +80,7 @@ class Reconstruction:
         self.queries_decoded += len(q)
         show = self.progress if self.progress is not None else len(q) > 8 * self.chunk_size
         parts = []
-        for i in tqdm(range(0, max(len(q), 1), self.chunk_size), desc="decoding queries", unit="chunk",
+        for i in progress_bar(range(0, max(len(q), 1), self.chunk_size), desc="decoding queries", unit="chunk",
                       disable=not show, leave=False):
             out = answerer.query(q[i:i + self.chunk_size])
             parts.append({k: out[k].detach().cpu().double().numpy() for k in KEYS})

@@ -11,7 +11,7 @@ import json
 import math
 from pathlib import Path
 
-from tqdm import tqdm
+from d4rt.progress import progress_bar, write_line
 
 
 class TrainLogger:
@@ -35,7 +35,7 @@ class TrainLogger:
                       "(pip install tensorboard, or set run.tensorboard: false)")
             else:
                 self.writer = SummaryWriter(str(directory / "tensorboard"), purge_step=start_step + 1)
-        self.bar = tqdm(total=total_steps, initial=start_step, desc="train", unit="step", dynamic_ncols=True,
+        self.bar = progress_bar(total=total_steps, initial=start_step, desc="train", unit="step", dynamic_ncols=True,
                         disable=not progress)
 
     def log(self, step: int, scalars: dict[str, float]) -> None:
@@ -59,7 +59,7 @@ class TrainLogger:
     def message(self, text: str) -> None:
         """A line printed above the progress bar."""
         if self.enabled:
-            tqdm.write(text)
+            write_line(text)
 
     def close(self) -> None:
         if not self.enabled:

@@ -1,0 +1,83 @@
+"""The names, defaults and argument checks of the export formats, with no heavy imports, so the command
+line can build its help and refuse bad arguments before torch loads."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from d4rt.errors import UserError
+from d4rt.viz.rerun_recording import rerun_available
+
+# Format name -> what it writes (in OUT_DIR), in the order they are written.
+FORMATS = {
+    "npz": "reconstruction.npz",
+    "depth": "depth/000000.png ... (16-bit) + depth/depth_scale.json",
+    "depth-video": "depth.mp4",
+    "ply": "points.ply",
+    "glb": "scene.glb",
+    "colmap": "colmap/images/, colmap/sparse/0/",
+    "tum": "trajectory_tum.txt",
+    "tracks-video": "tracks.mp4",
+    "rerun": "reconstruction.rrd",
+    "html": "viewer.html",
+    "dense-tracks": "dense_tracks.npz",
+}
+# Asked for by name only ("all" leaves them out): dense tracking decodes millions of queries.
+ON_REQUEST = ("dense-tracks",)
+# What each format needs decoded.
+FORMAT_NEEDS = {
+    "npz": {"depth", "cameras", "points", "tracks"},
+    "depth": {"depth"},
+    "depth-video": {"depth"},
+    "ply": {"points"},
+    "glb": {"points", "cameras"},
+    "colmap": {"points", "cameras", "colmap-points"},
+    "tum": {"cameras"},
+    "tracks-video": {"tracks", "cameras"},
+    "rerun": {"depth", "cameras", "points", "tracks"},
+    "html": {"points", "cameras", "tracks"},
+    "dense-tracks": {"dense", "cameras"},
+}
+DEFAULT_FPS = 10.0  # for the videos and the viewer when the input has no clock
+# Points of the COLMAP model: each is tracked through the whole video (T queries), so this bounds both
+# the file and the cost; 3D Gaussian splatting starts well from a few tens of thousands.
+DEFAULT_MAX_POINTS = 50_000
+# "auto" camera model: one camera unless the per-frame focal lengths' 90th / 10th percentiles differ more.
+CAMERA_CHOICES = ("auto", "single", "per-frame")
+ZOOM_SPREAD = 1.15
+
+
+def parse_formats(formats) -> list[str]:
+    """"all", a comma-separated string or a list of names -> the list of format names (in FORMATS
+    order). "all" is every format but those in ON_REQUEST (dense tracks). With "all", the rerun recording
+    is left out (with a notice) when rerun-sdk is missing; asked for by name, it is an error."""
+    if isinstance(formats, str):
+        names = ([f for f in FORMATS if f not in ON_REQUEST] if formats == "all"
+                 else [f.strip() for f in formats.split(",") if f.strip()])
+        everything = formats == "all"
+    else:
+        names, everything = list(formats), False
+    unknown = [n for n in names if n not in FORMATS]
+    if unknown or not names:
+        raise UserError(f"unknown output format(s) {unknown or names}; choose from all, {', '.join(FORMATS)}")
+    if "rerun" in names and not rerun_available():
+        if not everything:
+            raise UserError("the rerun output needs the rerun-sdk package: pip install 'd4rt[viewer]'")
+        print("d4rt: skipping reconstruction.rrd: rerun-sdk is not installed (pip install 'd4rt[viewer]')",
+              file=sys.stderr)
+        names.remove("rerun")
+    return [n for n in FORMATS if n in names]
+
+
+def check_output_dir(directory: str | Path, overwrite: bool = False) -> Path:
+    """The output folder, checked before any work: it must not exist, be empty, or (``overwrite``) be a
+    folder whose whole contents the new run may replace. Mixing one run's files with another's would
+    leave stale outputs beside fresh ones."""
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise UserError(f"output {directory} exists and is not a directory")
+    if not overwrite and directory.is_dir() and any(directory.iterdir()):
+        raise UserError(f"output folder {directory} is not empty: pass --overwrite to replace it (overwrite=True "
+                        "in Python), or choose another folder")
+    return directory
