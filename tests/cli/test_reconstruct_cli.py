@@ -253,6 +253,28 @@ def test_output_folder_and_confidence_refusals(tmp_path, clip, checkpoint, cli):
     assert sorted(p.name for p in out.iterdir()) == ["reconstruction.npz", "trajectory_tum.txt"]
 
 
+def test_a_video_with_a_shot_cut_is_written_shot_by_shot(tmp_path, clip, checkpoint, cli):
+    other = render_clip(5, 4, 24, 32, environment="outdoor", num_objects=2, camera_motion="pan")
+    video = tmp_path / "cut.npy"
+    np.save(video, np.concatenate([clip.rgb[:5], other.rgb]))
+    out = tmp_path / "out"
+    r = cli("reconstruct", video, "-o", out, "--checkpoint", checkpoint, "--tracks", "2", "--outputs", "npz,tum")
+    assert r.returncode == 0, r.stderr
+    assert "shot cuts before frames 5: 2 shots" in r.stdout
+    assert sorted(p.name for p in out.iterdir()) == ["shot_000", "shot_001", "shots.json"]
+    summary = json.loads((out / "shots.json").read_text())
+    assert summary["cuts_before_frames"] == [5]
+    assert [s["frames"] for s in summary["shots"]] == [[0, 4], [5, 8]]
+    for shot, frames in (("shot_000", 5), ("shot_001", 4)):
+        with np.load(out / shot / "reconstruction.npz") as npz:
+            assert npz["cam_to_world"].shape == (frames, 4, 4)
+            np.testing.assert_allclose(npz["cam_to_world"][0], np.eye(4), atol=1e-9)  # each shot its own world
+    # Stitched through on request: one folder, one camera path.
+    r = cli("reconstruct", video, "-o", out, "--overwrite", "--no-cut-detection", "--checkpoint", checkpoint,
+            "--tracks", "2", "--outputs", "tum")
+    assert r.returncode == 0 and sorted(p.name for p in out.iterdir()) == ["trajectory_tum.txt"], r.stderr
+
+
 def test_every_format_has_a_cli_name(capsys):
     with pytest.raises(SystemExit) as done:
         main(["reconstruct", "--help"])

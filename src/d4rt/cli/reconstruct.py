@@ -5,6 +5,7 @@ A thin layer over the Python API: ``load_frames`` -> ``model.reconstruct`` -> ``
 
 from __future__ import annotations
 
+import json
 from contextlib import nullcontext
 
 import numpy as np
@@ -12,6 +13,7 @@ from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
 from d4rt.io.formats import CAMERA_CHOICES, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST
+from d4rt.io.shots import DEFAULT_THRESHOLD as DEFAULT_CUT_THRESHOLD
 from d4rt.cli import COMMANDS, parse_size
 
 
@@ -47,6 +49,12 @@ def register(subparsers) -> None:
     outputs.add_argument("--intrinsics", metavar="FX,FY,CX,CY", default=None,
                          help="known intrinsics in pixels of the input frames, OpenCV convention (top-left pixel "
                               "centre at 0,0); they replace the estimated ones")
+    frames.add_argument("--cut-threshold", type=float, default=DEFAULT_CUT_THRESHOLD, metavar="D",
+                        help="a shot cut is a jump of the colour histogram between frames above D (0-1; default "
+                             f"{DEFAULT_CUT_THRESHOLD}) that stands out from its neighbours; each shot is reconstructed "
+                             "on its own into OUT_DIR/shot_NNN/ with a summary in shots.json")
+    frames.add_argument("--no-cut-detection", action="store_true",
+                        help="treat the video as one shot (stitch through cuts)")
     outputs.add_argument("--camera", choices=CAMERA_CHOICES, default="auto",
                          help="estimated intrinsics: 'single' camera for the whole video (what splatting and MVS "
                               "tools expect), one 'per-frame' (the paper's recipe; for zooming shots) or 'auto' (the "
@@ -186,7 +194,7 @@ def run(args) -> int:
     import torch
 
     from d4rt.devices import resolve_device
-    from d4rt.reconstruction import ModelSource, Reconstruction
+    from d4rt.io.shots import detect_cuts, shot_ranges
 
     device = resolve_device(args.device, "--device")
 
@@ -195,17 +203,63 @@ def run(args) -> int:
     t, h, w = frames.rgb.shape[:3]
     print(f"d4rt reconstruct: {t} frames of {w}x{h} from {args.input} (source frames {frames.indices[0]}.."
           f"{frames.indices[-1]}, stride {args.stride}) with model '{model.config.name}' on {device}")
+    shots = [(0, t)] if args.no_cut_detection else shot_ranges(t, detect_cuts(frames.rgb, args.cut_threshold))
+    usable = [(a, b) for a, b in shots if b - a >= 2]
+    if not usable:
+        raise UserError(f"every shot found is a single frame ({len(shots)} cuts): nothing to reconstruct; "
+                        "--no-cut-detection (or a higher --cut-threshold) keeps the frames together")
+    if args.track_frame >= min(b - a for a, b in usable):
+        raise UserError(f"--track-frame {args.track_frame} is past the end of a shot (shots: "
+                        f"{', '.join(f'{a}..{b - 1}' for a, b in shots)}); it counts from each shot's first frame")
+    save_options = dict(resolution=resolution, intrinsics=intrinsics, camera=args.camera,
+                        square_pixels=not args.non_square_pixels, min_confidence=args.min_confidence,
+                        point_stride=args.point_stride, track_grid=args.tracks, track_frame=args.track_frame,
+                        dense_resolution=dense_resolution, max_points=args.max_points, fps=frames.fps, progress=True)
+    stamps = frames.timestamps if frames.has_clock else None
     autocast = torch.autocast(device.type, dtype=torch.bfloat16) if args.bf16 else nullcontext()
-    with autocast, progress_bar(desc="encode", unit="window", bar_format="{desc}: {n} window encodings [{elapsed}]") as bar:
-        # What model.reconstruct(video, window=, overlap=) builds, with a progress bar on the encoder.
-        source = EncodeProgress(ModelSource(model, frames.rgb, max_window=args.window), bar)
-        rec = Reconstruction(source, frames.rgb, window=args.window, overlap=args.overlap, progress=True)
-        print(describe_work(rec, formats, resolution, args.point_stride, args.tracks, args.max_points))
-        paths = rec.save(out_dir, formats, overwrite=args.overwrite, resolution=resolution, intrinsics=intrinsics,
-                         camera=args.camera, square_pixels=not args.non_square_pixels,
-                         min_confidence=args.min_confidence, point_stride=args.point_stride, track_grid=args.tracks,
-                         track_frame=args.track_frame, dense_resolution=dense_resolution, max_points=args.max_points,
-                         timestamps=frames.timestamps if frames.has_clock else None,
-                         fps=frames.fps, progress=True)
+    with autocast:
+        if len(shots) == 1:
+            paths = reconstruct_clip(model, frames.rgb, stamps, out_dir, args, formats, save_options)
+        else:
+            print(f"shot cuts before frames {', '.join(str(a) for a, _ in shots[1:])}: {len(shots)} shots, each "
+                  "reconstructed on its own into OUT_DIR/shot_NNN/ (--no-cut-detection stitches through them)")
+            paths = reconstruct_shots(model, frames, shots, out_dir, args, formats, save_options)
     print(f"wrote {out_dir}/: {', '.join(p.name + ('/' if p.is_dir() else '') for p in paths)}")
     return 0
+
+
+def reconstruct_clip(model, rgb, timestamps, out_dir, args, formats, save_options, overwrite=None) -> list:
+    """One shot: encode (with a progress bar on the encoder), decode and write its outputs."""
+    from d4rt.reconstruction import ModelSource, Reconstruction
+
+    with progress_bar(desc="encode", unit="window", bar_format="{desc}: {n} window encodings [{elapsed}]") as bar:
+        # What model.reconstruct(video, window=, overlap=) builds, with a progress bar on the encoder.
+        source = EncodeProgress(ModelSource(model, rgb, max_window=args.window), bar)
+        rec = Reconstruction(source, rgb, window=args.window, overlap=args.overlap, progress=True)
+        print(describe_work(rec, formats, save_options["resolution"], args.point_stride, args.tracks, args.max_points))
+        return rec.save(out_dir, formats, overwrite=args.overwrite if overwrite is None else overwrite,
+                        timestamps=timestamps, **save_options)
+
+
+def reconstruct_shots(model, frames, shots, out_dir, args, formats, save_options) -> list:
+    """Each shot into its own folder (shot_000, ...) and a summary, shots.json: the cuts, and per shot its
+    frames (of the frames used, and of the source) and folder, or why it was skipped. The whole folder
+    appears at once when every shot is written (the exports' staging)."""
+    from d4rt.io.exports import staged_folder
+
+    rows = []
+    with staged_folder(out_dir) as stage:
+        for k, (a, b) in enumerate(shots):
+            row = {"shot": k, "frames": [a, b - 1], "source_frames": [int(frames.indices[a]), int(frames.indices[b - 1])]}
+            if b - a < 2:
+                row["skipped"] = "a single frame (at least 2 are needed)"
+            else:
+                print(f"shot {k}: frames {a}..{b - 1}")
+                stamps = frames.timestamps[a:b] if frames.has_clock else None
+                reconstruct_clip(model, frames.rgb[a:b], stamps, stage / f"shot_{k:03d}", args, formats, save_options,
+                                 overwrite=False)
+                row["folder"] = f"shot_{k:03d}"
+            rows.append(row)
+        summary = {"cuts_before_frames": [a for a, _ in shots[1:]], "cut_threshold": args.cut_threshold, "shots": rows}
+        (stage / "shots.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return sorted(out_dir.iterdir())

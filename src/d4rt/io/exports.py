@@ -296,7 +296,7 @@ def write_outputs(out: ReconstructionOutputs, directory: str | Path, formats, *,
     directory = check_output_dir(directory, overwrite)
     title = title or directory.name
     written = []
-    with _staging(directory) as stage:
+    with staged_folder(directory) as stage:
         for name in progress_bar(names, desc="write", unit="file", disable=not progress):
             written.append(_WRITERS[name](out, stage, title))
     return [directory / p.relative_to(stage) for p in written]
@@ -368,7 +368,7 @@ _WRITERS = {"npz": _write_npz, "depth": _write_depth, "depth-video": _write_dept
 
 
 @contextmanager
-def _staging(directory: Path):
+def staged_folder(directory: Path):
     """A fresh hidden folder beside ``directory`` (same file system, so moves are renames). On success it
     becomes ``directory`` (whose old contents, if any, are removed after the swap); on any error it is
     removed and ``directory`` is untouched."""
