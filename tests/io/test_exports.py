@@ -10,6 +10,7 @@ import av
 import numpy as np
 import pytest
 import trimesh
+from PIL import Image
 from trimesh.transformations import quaternion_matrix
 
 from d4rt.errors import UserError
@@ -240,7 +241,10 @@ def _decode(path):
 
 def test_videos_and_track_projections(clip, saved):
     out, npz = saved
-    assert _decode(out / "depth.mp4").shape == (5, 30, 40, 3)
+    depth_video = _decode(out / "depth.mp4")  # frame | depth | colour bar, enlarged 6x to 180 pixels high
+    assert depth_video.shape[:2] == (5, 180) and depth_video.shape[2] > 2 * 240
+    frame = np.asarray(Image.fromarray(clip.rgb[0]).resize((240, 180), Image.BILINEAR)).astype(float)
+    assert np.abs(depth_video[0, :, :240] - frame).mean() < 6  # the input frame on the left (H.264 loss)
     assert _decode(out / "tracks.mp4").shape == (5, 30, 40, 3)
     # The overlay draws the 3D tracks projected through the cameras: on the oracle, the true 2D tracks.
     xy, z = project_tracks(npz["tracks"], npz["video_intrinsics"], npz["cam_to_world"])

@@ -33,7 +33,7 @@ from d4rt.io.glb import write_glb
 from d4rt.io.ply import write_ply
 from d4rt.io.trajectory import write_tum
 from d4rt.io.video import write_video
-from d4rt.viz.colormaps import depth_to_rgb
+from d4rt.viz.depth_video import depth_video_frames
 from d4rt.viz.frusta import frustum_segments
 from d4rt.viz.html_viewer import write_html
 from d4rt.viz.overlay import draw_tracks, project_tracks, track_colors
@@ -318,7 +318,7 @@ def _write_depth(out, stage, title):
 
 
 def _write_depth_video(out, stage, title):
-    return write_video(stage / "depth.mp4", depth_to_rgb(np.where(out.depth_valid(), out.depth, 0)), fps=out.fps)
+    return write_video(stage / "depth.mp4", depth_video_frames(out.rgb, out.depth, out.depth_valid()), fps=out.fps)
 
 
 def _write_ply(out, stage, title):

@@ -20,12 +20,26 @@ def colormap(values: np.ndarray) -> np.ndarray:
     return np.round(_ANCHORS[i] * (1 - f) + _ANCHORS[i + 1] * f).astype(np.uint8)
 
 
+def depth_range(depth: np.ndarray) -> tuple[float, float]:
+    """(near, far) of the colour scale: the 98th and 2nd percentiles of inverse depth over the valid
+    (finite, positive) values, so a few outliers do not wash the colours out."""
+    valid = np.isfinite(depth) & (depth > 0)
+    if not valid.any():
+        return 1.0, np.inf
+    inv = 1.0 / depth[valid]
+    lo, hi = np.percentile(inv, 2), np.percentile(inv, 98)
+    return float(1.0 / hi) if hi > 0 else 1.0, float(1.0 / lo) if lo > 0 else np.inf
+
+
 def depth_to_rgb(depth: np.ndarray, near: float | None = None, far: float | None = None) -> np.ndarray:
-    """Colour depth maps (..., H, W) by inverse depth (near = warm), one range for the whole input."""
+    """Colour depth maps (..., H, W) by inverse depth (near = warm), one range for the whole input
+    (default: :func:`depth_range`); invalid pixels are black."""
     valid = np.isfinite(depth) & (depth > 0)
     inv = np.where(valid, 1.0 / np.where(valid, depth, 1.0), 0.0)
-    lo = 1.0 / far if far else (np.percentile(inv[valid], 2) if valid.any() else 0.0)
-    hi = 1.0 / near if near else (np.percentile(inv[valid], 98) if valid.any() else 1.0)
+    if near is None or far is None:
+        auto_near, auto_far = depth_range(depth)
+        near, far = near or auto_near, far or auto_far
+    lo, hi = 1.0 / far, 1.0 / near
     rgb = colormap((inv - lo) / max(hi - lo, 1e-12))
     rgb[~valid] = 0
     return rgb
