@@ -9,12 +9,13 @@ import sys
 import pytest
 
 from d4rt.reconstruction.reconstruction import DEFAULT_GRID
+from subprocess_budget import budget
 
 REQUIRED = ("device", "preset", "frames", "height", "width", "encoder_tokens_per_s", "decoder_queries_per_s",
             "kv_cache_speedup", "pose_fps", "dense_query_reduction", "tracks_at_fps", "peak_memory_bytes")
 
 
-def run_cli(*args, timeout=600):
+def run_cli(*args, timeout=budget(600)):
     return subprocess.run([sys.executable, "-m", "d4rt", *map(str, args)], capture_output=True, text=True,
                           timeout=timeout)
 

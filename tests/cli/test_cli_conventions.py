@@ -8,10 +8,11 @@ import pytest
 
 from d4rt.cli import COMMANDS, build_parser, main, parse_size
 from d4rt.errors import UserError
+from subprocess_budget import budget
 
 
 def _in_a_fresh_interpreter(code: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=budget(120))
 
 
 def test_a_bad_input_path_is_reported_before_torch_loads(tmp_path):

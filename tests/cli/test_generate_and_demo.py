@@ -16,13 +16,14 @@ from d4rt.cli import demo
 from d4rt.config import D4RTConfig
 from d4rt.model import D4RT
 from d4rt.synthetic import load_clip, render_clip
+from subprocess_budget import budget
 
 
 def run_cli(*args, cwd=None):
     # The d4rt under test, whatever the working directory (a relative PYTHONPATH would not follow cwd).
     env = {**os.environ, "PYTHONPATH": str(Path(d4rt.__file__).parents[1])}
     return subprocess.run([sys.executable, "-m", "d4rt", *args], capture_output=True, text=True, cwd=cwd,
-                          timeout=600, env=env)
+                          timeout=budget(600), env=env)
 
 
 def test_generate_writes_clips_reproducibly(tmp_path):

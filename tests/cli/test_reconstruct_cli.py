@@ -26,11 +26,12 @@ from d4rt.io.formats import FORMATS, rerun_available
 from d4rt.io.video import write_video
 from d4rt.model import D4RT
 from d4rt.synthetic import render_clip
+from subprocess_budget import budget
 
 TUM = Path(str(files("d4rt") / "assets" / "tum-fr3-long-office-household" / "rgb"))
 
 
-def run_cli(*args, timeout=600):
+def run_cli(*args, timeout=budget(600)):
     """Through the real console entry point (a new interpreter)."""
     return subprocess.run([sys.executable, "-m", "d4rt", *map(str, args)], capture_output=True, text=True,
                           timeout=timeout)

@@ -20,6 +20,7 @@ from d4rt.io import exports, formats
 from d4rt.io.depth_png import read_depth_png
 from d4rt.synthetic import render_clip
 from d4rt.viz.overlay import project_tracks
+from subprocess_budget import budget
 
 GRID = 5
 
@@ -259,10 +260,10 @@ def test_rerun_recording_verifies(saved):
     out, _ = saved
     rrd = out / "reconstruction.rrd"
     verify = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)], capture_output=True,
-                            text=True, timeout=120)
+                            text=True, timeout=budget(120))
     assert verify.returncode == 0, verify.stderr
     listing = subprocess.run([sys.executable, "-m", "rerun", "rrd", "print", str(rrd)], capture_output=True,
-                             text=True, timeout=120).stdout
+                             text=True, timeout=budget(120)).stdout
     for entity in ("world/camera", "world/camera/image", "world/points", "world/tracks", "depth"):
         assert entity in listing, entity
 

@@ -10,6 +10,7 @@ import pytest
 from PIL import Image
 
 from d4rt.synthetic import render_clip
+from subprocess_budget import budget
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 BACKGROUND = (0x14, 0x16, 0x1A)  # the page's background colour
@@ -29,7 +30,7 @@ def test_page_is_self_contained(page):
     assert "fetch(" not in text and "XMLHttpRequest" not in text and "console." not in text
 
 
-def _chromium(*args, timeout=120):
+def _chromium(*args, timeout=budget(120)):
     return subprocess.run([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--window-size=800,600",
                            "--virtual-time-budget=2000", *args], capture_output=True, text=True, timeout=timeout)
 

@@ -27,6 +27,7 @@ from d4rt.config import D4RTConfig
 from d4rt.model import D4RT
 from d4rt.model.weights import bundled_model_dir
 from d4rt.training.config import TrainConfig
+from subprocess_budget import budget
 
 ROOT = Path(__file__).resolve().parents[2]
 EXPECTED = Path(__file__).with_name("expected-subset.json")
@@ -90,7 +91,7 @@ def test_shipped_model_reproduces_its_figures_on_a_subset(tmp_path):
     r = subprocess.run([sys.executable, "-m", "d4rt", "eval", "--benchmark", "synthetic-dynamic-v1",
                         "--checkpoint", str(bundled_model_dir()), "--baseline", "constant-depth",
                         "--limit", str(SUBSET_CLIPS), "--out", str(out)],
-                       capture_output=True, text=True, timeout=900, env=env)
+                       capture_output=True, text=True, timeout=budget(900), env=env)
     assert r.returncode == 0, r.stderr
     assert_same_figures(d4rt_rows(json.loads(out.read_text())), d4rt_rows(json.loads(EXPECTED.read_text())))
 
@@ -98,5 +99,5 @@ def test_shipped_model_reproduces_its_figures_on_a_subset(tmp_path):
 def test_model_card_matches_its_sources():
     """Every measured number in MODEL_CARD.md is generated from docs/model-card/*.json."""
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "model_card.py"), "--check"], capture_output=True,
-                       text=True, timeout=120)
+                       text=True, timeout=budget(120))
     assert r.returncode == 0, r.stderr + r.stdout

@@ -17,6 +17,7 @@ from safetensors.torch import load_file
 
 from d4rt.training import TrainConfig, train
 from training_helpers import fast_config, subprocess_env, write_config
+from subprocess_budget import budget
 
 WORKER = Path(__file__).with_name("distributed_worker.py")
 
@@ -28,7 +29,7 @@ def torchrun(config: Path, out: Path, report: Path, *flags: str) -> list[dict]:
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                env=subprocess_env(), start_new_session=True)
     try:
-        output, _ = process.communicate(timeout=400)
+        output, _ = process.communicate(timeout=budget(400))
     except subprocess.TimeoutExpired:
         os.killpg(process.pid, signal.SIGKILL)
         output, _ = process.communicate()

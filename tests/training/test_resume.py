@@ -18,6 +18,7 @@ from safetensors.torch import load_file
 
 from d4rt.training import latest_checkpoint
 from training_helpers import fast_config, run_d4rt, subprocess_env, write_config
+from subprocess_budget import budget
 
 
 def same_tensors(a: Path, b: Path) -> bool:
@@ -90,7 +91,7 @@ def test_sigterm_writes_a_checkpoint_of_the_current_step_and_resume_loses_nothin
     stopped = tmp_path / "stopped"
     process = start_run_and_wait_for_steps(config, stopped, 3)
     process.send_signal(signal.SIGTERM)
-    out, err = process.communicate(timeout=120)
+    out, err = process.communicate(timeout=budget(120))
     assert process.returncode == 128 + signal.SIGTERM, err
     step = int(re.search(r"stopped at step (\d+) by SIGTERM", out).group(1))
     assert 3 <= step < 10 and "checkpoint written, continue with --resume" in out + err
@@ -127,7 +128,7 @@ def test_a_signal_to_the_process_group_with_loader_workers_stops_cleanly_and_res
     stopped = tmp_path / "stopped"
     process = start_run_and_wait_for_steps(config, stopped, 3, new_session=True)
     os.killpg(process.pid, sig)  # the group: the run and its workers
-    out, err = process.communicate(timeout=120)
+    out, err = process.communicate(timeout=budget(120))
     assert "killed by signal" not in err and "exited unexpectedly" not in err, err
     assert process.returncode == 128 + sig, err
     step = int(re.search(rf"stopped at step (\d+) by {name}", out).group(1))
@@ -170,7 +171,7 @@ checkpoint.write_checkpoint(sys.argv[1], 4, model.state_dict(), model.config, st
 def test_a_checkpoint_half_written_at_a_kill_is_never_picked_up(tmp_path):
     root = tmp_path / "checkpoints"
     killed = subprocess.run([sys.executable, "-c", _KILL_MID_WRITE, str(root)], env=subprocess_env(),
-                            capture_output=True, text=True, timeout=120)
+                            capture_output=True, text=True, timeout=budget(120))
     assert killed.returncode == -signal.SIGKILL, killed.stderr
     leftovers = [p.name for p in root.iterdir()]
     assert "step-00000002" in leftovers and "step-00000004" not in leftovers

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import yaml
+from subprocess_budget import budget
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -46,6 +47,6 @@ def subprocess_env() -> dict:
     return env
 
 
-def run_d4rt(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+def run_d4rt(*args: str, timeout: float = budget(300)) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "d4rt", *args], capture_output=True, text=True,
                           env=subprocess_env(), timeout=timeout)
