@@ -104,6 +104,8 @@ def parse_resolution(text: str, option: str = "--resolution"):
     if text in ("original", "encoder"):
         return None if text == "original" else text
     try:
+        if "x" not in text.lower():  # a lone N would mean N x N: a square that ignores the video's shape
+            raise UserError(text)
         return parse_size(text, option)
     except UserError:
         raise UserError(f"{option} must be 'original', 'encoder' or WIDTHxHEIGHT (e.g. 640x480), got {text!r}") from None

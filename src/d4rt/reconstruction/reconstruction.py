@@ -425,8 +425,9 @@ class Reconstruction:
 
     def save(self, directory, formats="all", **options) -> list:
         """Write the outputs ("all", or names such as ``["npz", "ply", "colmap"]``: see
-        ``d4rt.io.exports.FORMATS``) into ``directory``, atomically; ``options`` (resolution, intrinsics,
-        min_confidence, point_stride, track_grid, track_frame, dense_resolution, timestamps, fps, progress) are those of
+        ``d4rt.io.exports.FORMATS``) into ``directory`` (new or empty; ``overwrite=True`` replaces it),
+        atomically; ``options`` (resolution, intrinsics, camera, square_pixels, min_confidence, point_stride,
+        track_grid, track_frame, dense_resolution, max_points, timestamps, fps, progress) are those of
         ``d4rt.io.exports.compute_outputs``. Returns the paths written."""
         from d4rt.io.exports import save  # the I/O layer sits above this one
 
