@@ -1,6 +1,9 @@
-"""Turning a user's device name into a torch device, with one clear error when it is not there."""
+"""Turning a user's device name into a torch device, with one clear error when it is not there, and
+whether the device computes bfloat16 natively."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import torch
 
@@ -27,3 +30,27 @@ def resolve_device(name: str, what: str = "device") -> torch.device:
     elif device.type == "mps" and not torch.backends.mps.is_available():
         raise UserError(f"{what} {name!r} asked for but MPS is not available on this machine")
     return device
+
+
+# CPU flags of native bfloat16 arithmetic (Linux /proc/cpuinfo names): Intel AMX tiles, AVX-512 BF16.
+BF16_CPU_FLAGS = ("amx_bf16", "avx512_bf16")
+
+
+def native_bf16(device: torch.device, cpuinfo: str | None = None) -> bool:
+    """Whether bfloat16 autocast runs natively (fast) on ``device``: CUDA GPUs that support it, and CPUs with
+    AMX-BF16 or AVX512-BF16 (read from /proc/cpuinfo, or ``cpuinfo`` text; False where it cannot be read).
+    Without native support bf16 is emulated and slower than float32."""
+    if device.type == "cuda":
+        return bool(torch.cuda.is_bf16_supported())
+    if device.type != "cpu":
+        return False
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return False
+    flags = set()
+    for line in cpuinfo.splitlines():
+        if line.startswith("flags"):
+            flags.update(line.partition(":")[2].split())
+    return any(flag in flags for flag in BF16_CPU_FLAGS)

@@ -44,7 +44,10 @@ def register(subparsers) -> None:
                        help="a directory written by D4RT.save_pretrained (default: the bundled model)")
     model.add_argument("--device", default="auto",
                        help="torch device: auto (the default: cuda if available), cpu, cuda, cuda:1, ...")
-    model.add_argument("--bf16", action="store_true", help="run the model under bfloat16 autocast")
+    model.add_argument("--dtype", choices=("auto", "bf16", "fp32"), default="auto",
+                       help="auto (the default): bfloat16 autocast where the device computes it natively (GPUs, "
+                            "CPUs with AMX-BF16 or AVX512-BF16: about 2x faster, depth within 0.1%%), else float32")
+    model.add_argument("--bf16", action="store_const", const="bf16", dest="dtype", help="same as --dtype bf16")
     outputs = p.add_argument_group("outputs")
     outputs.add_argument("--intrinsics", metavar="FX,FY,CX,CY", default=None,
                          help="known intrinsics in pixels of the input frames, OpenCV convention (top-left pixel "
@@ -195,16 +198,18 @@ def run(args) -> int:
 
     import torch
 
-    from d4rt.devices import resolve_device
+    from d4rt.devices import native_bf16, resolve_device
     from d4rt.io.shots import detect_cuts, shot_ranges
 
     device = resolve_device(args.device, "--device")
+    bf16 = args.dtype == "bf16" or (args.dtype == "auto" and native_bf16(device))
 
     frames = load_frames(args.input, selection, progress=True)
     model = load_model(args.checkpoint, device)
     t, h, w = frames.rgb.shape[:3]
     print(f"d4rt reconstruct: {t} frames of {w}x{h} from {args.input} (source frames {frames.indices[0]}.."
-          f"{frames.indices[-1]}, stride {args.stride}) with model '{model.config.name}' on {device}")
+          f"{frames.indices[-1]}, stride {args.stride}) with model '{model.config.name}' on {device}"
+          f"{' under bf16 autocast' if bf16 else ''}")
     shots = [(0, t)] if args.no_cut_detection else shot_ranges(t, detect_cuts(frames.rgb, args.cut_threshold))
     usable = [(a, b) for a, b in shots if b - a >= 2]
     if not usable:
@@ -218,7 +223,7 @@ def run(args) -> int:
                         point_stride=args.point_stride, track_grid=args.tracks, track_frame=args.track_frame,
                         dense_resolution=dense_resolution, max_points=args.max_points, fps=frames.fps, progress=True)
     stamps = frames.timestamps if frames.has_clock else None
-    autocast = torch.autocast(device.type, dtype=torch.bfloat16) if args.bf16 else nullcontext()
+    autocast = torch.autocast(device.type, dtype=torch.bfloat16) if bf16 else nullcontext()
     with autocast:
         if len(shots) == 1:
             paths = reconstruct_clip(model, frames.rgb, stamps, out_dir, args, formats, save_options)
