@@ -43,6 +43,22 @@ def test_encoder_runs_once_however_many_chunks_are_decoded(make_model, random_vi
     assert decoder_calls.calls == 15 + 4
 
 
+def test_preallocated_answers_equal_the_chunks_bit_for_bit(make_model, random_video, random_queries):
+    """query() writes each chunk's answers into tensors of the final size: the same bits as decoding the
+    chunks one by one and concatenating them (the uneven last chunk included), under bf16 autocast too."""
+    model = make_model()
+    scene = model.encode(random_video(5, 30, 40))
+    queries = random_queries(23, 5)
+    for autocast in (False, True):
+        with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
+            answers = scene.query(queries, chunk_size=5)
+            pieces = [model.decode(queries[None, i:i + 5].float(), scene.scene_kv(True), scene.patch_video, True)
+                      for i in range(0, 23, 5)]
+        for key in OUTPUT_KEYS:
+            expected = torch.cat([piece[key][0] for piece in pieces])
+            assert answers[key].dtype == expected.dtype and torch.equal(answers[key], expected), (key, autocast)
+
+
 def test_scene_keys_values_are_projected_once_per_layer_when_cached(make_model, random_video, random_queries):
     model = make_model()
     projections = [MethodCounter(block.attn, "project_context") for block in model.decoder.blocks]

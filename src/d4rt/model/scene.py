@@ -155,14 +155,19 @@ class EncodedScene:
             raise UserError(f"chunk_size must be a positive integer or 'auto', got {chunk!r}")
         cache = self.model.config.cache_scene_kv if cache_kv is None else bool(cache_kv)
 
-        outputs: dict[str, list[torch.Tensor]] = {key: [] for key in OUTPUT_KEYS}
+        # The answers go straight into tensors of the final size (allocated once the first chunk gives the
+        # shapes and dtypes): keeping per-chunk pieces to concatenate would hold every answer twice at the end.
         # No queries still run one (empty) chunk, so the empty answers have the usual shapes and dtypes.
-        for start in range(0, max(queries.shape[0], 1), chunk):
+        n = queries.shape[0]
+        outputs: dict[str, torch.Tensor] = {}
+        for start in range(0, max(n, 1), chunk):
             answer = self.model.decode(queries[None, start:start + chunk], self.scene_kv(cache), self.patch_video,
                                        share_sources)
+            if not outputs:
+                outputs = {key: answer[key].new_empty((n, *answer[key].shape[2:])) for key in OUTPUT_KEYS}
             for key in OUTPUT_KEYS:
-                outputs[key].append(answer[key][0])
-        return {key: torch.cat(parts) for key, parts in outputs.items()}
+                outputs[key][start:start + answer[key].shape[1]] = answer[key][0]
+        return outputs
 
     def __repr__(self) -> str:
         return (f"EncodedScene(frames={self.num_frames}, original={self.width}x{self.height}, "

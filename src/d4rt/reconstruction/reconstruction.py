@@ -79,12 +79,16 @@ class Reconstruction:
         answerer = self.source.window(start, stop)
         self.queries_decoded += len(q)
         show = self.progress if self.progress is not None else len(q) > 8 * self.chunk_size
-        parts = []
+        answers: dict[str, np.ndarray] = {}  # filled chunk by chunk (no per-chunk copies kept to concatenate)
         for i in progress_bar(range(0, max(len(q), 1), self.chunk_size), desc="decoding queries", unit="chunk",
-                      disable=not show, leave=False):
+                              disable=not show, leave=False):
             out = answerer.query(q[i:i + self.chunk_size])
-            parts.append({k: out[k].detach().cpu().double().numpy() for k in KEYS})
-        return {k: np.concatenate([p[k] for p in parts]) for k in KEYS}
+            for k in KEYS:
+                part = out[k].detach().cpu().double().numpy()
+                if k not in answers:
+                    answers[k] = np.empty((len(q), *part.shape[1:]))
+                answers[k][i:i + len(part)] = part
+        return answers
 
     def _owners(self, frames) -> np.ndarray:
         """The first window containing each frame: (N,) int64. Windows are ordered and overlap, so it is
