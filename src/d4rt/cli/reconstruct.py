@@ -129,24 +129,6 @@ def load_model(checkpoint: str | None, device):
     return D4RT.from_pretrained(checkpoint, device=device)
 
 
-class EncodeProgress:
-    """A model source (``d4rt.reconstruction.ModelSource``) that ticks an "encode" bar each time a
-    window is encoded (windows are encoded again when a later recipe comes back to them)."""
-
-    def __init__(self, source, bar):
-        self.source, self.bar = source, bar
-        self.num_frames, self.max_window, self.encoder_size = source.num_frames, source.max_window, source.encoder_size
-
-    def window(self, start: int, stop: int):
-        before = self.source.encodes
-        scene = self.source.window(start, stop)
-        self.bar.update(self.source.encodes - before)
-        return scene
-
-    def keeping(self, count: int):
-        return self.source.keeping(count)
-
-
 LARGE_QUERIES = 20_000_000  # above this many decoded queries, a one-line notice before the work starts
 
 
@@ -241,7 +223,7 @@ def reconstruct_clip(model, rgb, timestamps, out_dir, args, formats, save_option
 
     with progress_bar(desc="encode", unit="window", bar_format="{desc}: {n} window encodings [{elapsed}]") as bar:
         # What model.reconstruct(video, window=, overlap=) builds, with a progress bar on the encoder.
-        source = EncodeProgress(ModelSource(model, rgb, max_window=args.window), bar)
+        source = ModelSource(model, rgb, max_window=args.window, on_encode=bar.update)
         rec = Reconstruction(source, rgb, window=args.window, overlap=args.overlap, progress=True)
         print(describe_work(rec, formats, save_options["resolution"], args.point_stride, args.tracks, args.max_points))
         return rec.save(out_dir, formats, overwrite=args.overwrite if overwrite is None else overwrite,

@@ -8,6 +8,7 @@ when it is needed; the synthetic oracle answers any window directly.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from contextlib import contextmanager
 from typing import Protocol
 
@@ -51,10 +52,12 @@ class ModelSource:
     """A D4RT model over a video: each window is encoded when it is first asked for. The most recently
     used ``cache_windows`` encoded windows are kept (2 by default: window alignment works on
     consecutive pairs), so memory is bounded by a few windows, not the video; inside :meth:`keeping`
-    (dense tracking) more are kept. ``encodes`` counts the windows encoded so far."""
+    (dense tracking) more are kept. ``encodes`` counts the windows encoded so far; ``on_encode``, if
+    given, is called with no argument after each encode (a progress bar's update, say)."""
 
-    def __init__(self, model, video, max_window: int | None = None, cache_windows: int = 2):
-        self.model, self.video = model, video
+    def __init__(self, model, video, max_window: int | None = None, cache_windows: int = 2,
+                 on_encode: Callable[[], object] | None = None):
+        self.model, self.video, self.on_encode = model, video, on_encode
         self.num_frames = int(video.shape[0])
         self.max_window = max_window or model.config.max_frames
         size = model.config.image_size
@@ -72,6 +75,8 @@ class ModelSource:
             self._cache.pop(next(iter(self._cache)))  # release the least recently used window first
         self._cache[key] = self.model.encode(self.video[start:stop])
         self.encodes += 1
+        if self.on_encode is not None:
+            self.on_encode()
         return self._cache[key]
 
     @contextmanager
