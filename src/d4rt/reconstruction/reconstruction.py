@@ -22,6 +22,7 @@ import torch
 from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
+from d4rt.geometry.camera import pixel_to_uv
 from d4rt.geometry.transforms import invert_rigid
 from d4rt.geometry.umeyama import Similarity, umeyama
 from d4rt.reconstruction.cameras import intrinsics_from_points, relative_poses
@@ -110,7 +111,7 @@ class Reconstruction:
     def _pixel_uv(self, height: int, width: int) -> np.ndarray:
         """(H*W, 2) normalised positions of every pixel centre of an H x W image, row-major."""
         ys, xs = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
-        return np.stack([(xs.ravel() + 0.5) / width, (ys.ravel() + 0.5) / height], 1)
+        return pixel_to_uv(np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64), height, width)
 
     # ------------------------------------------------------------------------------------------------
     # Window alignment (App. B)
@@ -250,7 +251,7 @@ class Reconstruction:
             self._check_frame(int(f), "frames")
         ys, xs = np.meshgrid(np.arange(0, self.height, stride), np.arange(0, self.width, stride), indexing="ij")
         xs, ys = xs.ravel(), ys.ravel()
-        uv = np.stack([(xs + 0.5) / self.width, (ys + 0.5) / self.height], 1)
+        uv = pixel_to_uv(np.stack([xs, ys], 1).astype(np.float64), self.height, self.width)
         single = len(self.windows) == 1
         if not single:
             world_to_ref = invert_rigid(self._global_pose(reference_frame))
@@ -316,7 +317,7 @@ class Reconstruction:
         n, t = len(src), self.num_frames
         out = {"points": np.full((n, t, 3), np.nan), "uv": np.full((n, t, 2), np.nan), "visibility": np.zeros((n, t)),
                "confidence": np.zeros((n, t))}
-        uv0 = np.stack([(src[:, 1] + 0.5) / self.width, (src[:, 2] + 0.5) / self.height], 1)
+        uv0 = pixel_to_uv(src[:, 1:3], self.height, self.width)
         t0 = src[:, 0].astype(np.int64)
         home = self._owners(t0)
         if frame == "world" and len(self.windows) > 1:
