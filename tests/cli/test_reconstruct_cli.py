@@ -250,7 +250,7 @@ def test_output_folder_and_confidence_refusals(tmp_path, clip, checkpoint, cli):
         assert [p.name for p in tmp_path.iterdir()] == ["v.npy", "out"] and [p.name for p in out.iterdir()] == ["earlier.ply"]
     r = cli(*base, "--overwrite", "--outputs", "npz,tum", "--dtype", "fp32")
     assert r.returncode == 0 and "autocast" not in r.stdout, r.stderr
-    assert "outputs: depth maps 32x24, point cloud from every pixel, 2x2 tracks: about" in r.stdout
+    assert "outputs: depth maps 32x24, point cloud from the depth maps, 2x2 tracks: about" in r.stdout
     assert sorted(p.name for p in out.iterdir()) == ["reconstruction.npz", "trajectory_tum.txt"]
 
 

@@ -101,3 +101,19 @@ def test_model_card_matches_its_sources():
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "model_card.py"), "--check"], capture_output=True,
                        text=True, timeout=budget(120))
     assert r.returncode == 0, r.stderr + r.stdout
+
+
+def test_derived_and_direct_point_clouds_of_the_model_agree_within_tolerance(room_clip):
+    """On the model the depth-derived cloud (the exports' default) and the direct recipe differ by how well
+    its depth, its cameras and its direct answers agree: measured 0.115 of the scene's mean radius (median;
+    on a 12-frame room clip, where the derived cloud was also the closer of the two to the truth after a
+    Sim(3) fit, 0.62 vs 0.68); the bound leaves room for that and catches a broken derivation (which
+    would be off by the scene's size)."""
+    from d4rt.io.exports import compute_outputs
+
+    rec = D4RT.from_pretrained().reconstruct(room_clip.rgb, progress=False)
+    derived = compute_outputs(rec, ["ply"], point_stride=2)
+    direct = compute_outputs(rec, ["ply"], point_stride=2, points_from="queries")
+    assert np.array_equal(derived.point_pixels, direct.point_pixels)
+    radius = np.linalg.norm(direct.points - direct.points.mean(0), axis=1).mean()
+    assert np.median(np.linalg.norm(derived.points - direct.points, axis=1)) < 0.25 * radius

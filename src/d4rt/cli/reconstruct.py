@@ -12,7 +12,7 @@ import numpy as np
 from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
-from d4rt.io.formats import CAMERA_CHOICES, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST
+from d4rt.io.formats import CAMERA_CHOICES, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST, POINT_SOURCES
 from d4rt.io.shots import DEFAULT_THRESHOLD as DEFAULT_CUT_THRESHOLD
 from d4rt.cli import COMMANDS, parse_size
 
@@ -72,6 +72,10 @@ def register(subparsers) -> None:
                               "the model's own: positive, higher is more certain, comparable within one video only "
                               "(the bundled model's lie around 0.2-0.6); reconstruction.npz keeps every value to "
                               "choose from. A threshold that leaves nothing is an error that prints the range")
+    outputs.add_argument("--points-from", choices=POINT_SOURCES, default="depth",
+                         help="point cloud from the decoded depth maps and cameras (the default: no further "
+                              "query) or from 'queries' (the paper's direct recipe: every pixel queried again in "
+                              "camera 0; about as many queries again as the depth maps)")
     outputs.add_argument("--point-stride", type=int, default=None, metavar="N",
                          help="point cloud from every n-th pixel (default: as dense as the depth maps)")
     outputs.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, metavar="N",
@@ -132,25 +136,30 @@ def load_model(checkpoint: str | None, device):
 LARGE_QUERIES = 20_000_000  # above this many decoded queries, a one-line notice before the work starts
 
 
-def describe_work(rec, formats, resolution, point_stride: int | None, track_grid: int, max_points: int) -> str:
+def describe_work(rec, formats, resolution, point_stride: int | None, track_grid: int, max_points: int,
+                  points_from: str = "depth") -> str:
     """One line, printed before any decoding: the output sizes and about how many queries they cost
     (the depth maps and the point cloud decode one query per output pixel, tracks one per point and
     frame), with a notice and the cheaper options when that is a lot."""
     from d4rt.io.formats import FORMAT_NEEDS
 
     needs = set().union(*(FORMAT_NEEDS[f] for f in formats))
+    derived = points_from == "depth"
     t = rec.num_frames
     out_h, out_w = rec.output_size(resolution)
     stride = point_stride or max(1, int(min(rec.height / out_h, rec.width / out_w)))
-    counts = {"depth": t * out_h * out_w if "depth" in needs else 0,
-              "points": t * -(-rec.height // stride) * -(-rec.width // stride) if "points" in needs else 0,
+    counts = {"depth": t * out_h * out_w if "depth" in needs or ("points" in needs and derived) else 0,
+              "points": t * -(-rec.height // stride) * -(-rec.width // stride) if "points" in needs and not derived
+              else 0,
               "tracks": track_grid * track_grid * t if "tracks" in needs else 0,
               "colmap": max_points * t if "colmap-points" in needs else 0}
     total = sum(counts.values())
     parts = []
     if counts["depth"]:
         parts.append(f"depth maps {out_w}x{out_h}")
-    if counts["points"]:
+    if "points" in needs and derived:
+        parts.append("point cloud from the depth maps")
+    elif counts["points"]:
         parts.append("point cloud from every pixel" if stride == 1 else f"point cloud from 1 pixel in {stride}x{stride}")
     if counts["tracks"]:
         parts.append(f"{track_grid}x{track_grid} tracks")
@@ -202,7 +211,8 @@ def run(args) -> int:
                         f"{', '.join(f'{a}..{b - 1}' for a, b in shots)}); it counts from each shot's first frame")
     save_options = dict(resolution=resolution, intrinsics=intrinsics, camera=args.camera,
                         square_pixels=not args.non_square_pixels, min_confidence=args.min_confidence,
-                        point_stride=args.point_stride, track_grid=args.tracks, track_frame=args.track_frame,
+                        point_stride=args.point_stride, points_from=args.points_from, track_grid=args.tracks,
+                        track_frame=args.track_frame,
                         dense_resolution=dense_resolution, max_points=args.max_points, fps=frames.fps, progress=True)
     stamps = frames.timestamps if frames.has_clock else None
     autocast = torch.autocast(device.type, dtype=torch.bfloat16) if bf16 else nullcontext()
@@ -225,7 +235,8 @@ def reconstruct_clip(model, rgb, timestamps, out_dir, args, formats, save_option
         # What model.reconstruct(video, window=, overlap=) builds, with a progress bar on the encoder.
         source = ModelSource(model, rgb, max_window=args.window, on_encode=bar.update)
         rec = Reconstruction(source, rgb, window=args.window, overlap=args.overlap, progress=True)
-        print(describe_work(rec, formats, save_options["resolution"], args.point_stride, args.tracks, args.max_points))
+        print(describe_work(rec, formats, save_options["resolution"], args.point_stride, args.tracks, args.max_points,
+                            args.points_from))
         return rec.save(out_dir, formats, overwrite=args.overwrite if overwrite is None else overwrite,
                         timestamps=timestamps, **save_options)
 

@@ -25,9 +25,10 @@ from d4rt.geometry.transforms import apply_transform
 from d4rt.geometry.view import View
 from d4rt.geometry.voxel import voxel_subsample
 from d4rt.io.colmap import multiview_points, write_colmap
+from d4rt.reconstruction.point_clouds import point_cloud_from_depth
 from d4rt.io.formats import (  # noqa: F401 (FORMATS, ON_REQUEST: part of this module's interface too)
-    CAMERA_CHOICES, DEFAULT_FPS, DEFAULT_MAX_POINTS, FORMAT_NEEDS, FORMATS, ON_REQUEST, ZOOM_SPREAD, check_output_dir,
-    parse_formats)
+    CAMERA_CHOICES, DEFAULT_FPS, DEFAULT_MAX_POINTS, FORMAT_NEEDS, FORMATS, ON_REQUEST, POINT_SOURCES, ZOOM_SPREAD,
+    check_output_dir, parse_formats)
 from d4rt.io.depth_png import write_depth_pngs
 from d4rt.io.glb import write_glb
 from d4rt.io.ply import write_ply
@@ -114,7 +115,8 @@ class ReconstructionOutputs:
 def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, camera: str = "auto",
                     square_pixels: bool = True, min_confidence: float | None = None,
                     point_stride: int | None = None, track_grid: int = 16, track_frame: int = 0,
-                    dense_resolution=None, max_points: int = DEFAULT_MAX_POINTS, timestamps=None,
+                    dense_resolution=None, max_points: int = DEFAULT_MAX_POINTS, points_from: str = "depth",
+                    timestamps=None,
                     fps: float | None = None, progress: bool = False) -> ReconstructionOutputs:
     """Decode what ``formats`` need from a :class:`d4rt.reconstruction.Reconstruction`.
 
@@ -126,9 +128,12 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     :func:`choose_camera_model`); square_pixels: fx = fy (the default); both apply to estimated
     intrinsics only, and every export uses the same ones. min_confidence: points and depth pixels below
     it are dropped (None: keep every positive confidence); if nothing is left, a UserError gives the
-    range of confidences found (the scale is the model's: see docs/outputs.md). point_stride: point
-    cloud from every n-th pixel of the input (default: the input-to-output size ratio, so the cloud is
-    about as dense as the depth maps). track_grid: tracks start from a track_grid x track_grid grid of
+    range of confidences found (the scale is the model's: see docs/outputs.md). points_from: "depth"
+    (the default: the depth maps unprojected through the cameras, no further query; the depth maps are
+    decoded for it if no format needs them) or "queries" (the paper's direct recipe: every pixel queried
+    again with t_cam = 0). point_stride: point cloud from every n-th pixel of the input (default: one
+    point per depth-map pixel, or for "queries" the input-to-output size ratio, so the cloud is about
+    as dense as the depth maps). track_grid: tracks start from a track_grid x track_grid grid of
     pixels of frame ``track_frame`` (0: no tracks). dense_resolution: the dense-tracking grid, (H, W),
     "encoder" or "original" (the input's size); None: the encoder's input size where the model has one
     (the input's size for an oracle): every pixel of a full-size video is rarely what is wanted, and
@@ -148,6 +153,8 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
         raise UserError(f"the track grid must be >= 0 points per side, got {track_grid}")
     if not 0 <= track_frame < t:
         raise UserError(f"the track frame must be in [0, {t - 1}], got {track_frame}")
+    if points_from not in POINT_SOURCES:
+        raise UserError(f"points_from must be one of {', '.join(POINT_SOURCES)}, got {points_from!r}")
     if max_points < 1:
         raise UserError(f"the maximum number of COLMAP points must be >= 1, got {max_points}")
     if point_stride is not None and point_stride < 1:
@@ -160,6 +167,8 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     out_h, out_w = rec.output_size(resolution)
     if "dense" in needs:  # checked before any decoding
         dense_size = _dense_size(rec, dense_resolution)
+    if "points" in needs and points_from == "depth":
+        needs.add("depth")
     if "depth" in needs:
         needs.add("cameras")  # the depth maps' intrinsics
     stages = [s for s in ("cameras", "depth", "points", "tracks", "colmap-points", "dense") if s in needs]
@@ -179,8 +188,13 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
             resize = View((h, w), (0, 0, w, h), (out_h, out_w), tuple(range(t)))
             out.intrinsics = resize.intrinsics(out.video_intrinsics)
         elif stage == "points":
-            stride = point_stride or max(1, int(min(h / out_h, w / out_w)))
-            cloud = rec.point_cloud(stride=stride)
+            if points_from == "depth":  # no query: the depth maps and cameras already decoded
+                stride = max(1, round(point_stride * min(out_h / h, out_w / w))) if point_stride else 1
+                cloud = point_cloud_from_depth(out.depth, out.confidence, out.intrinsics, out.cam_to_world, rec.video,
+                                               stride)
+            else:
+                stride = point_stride or max(1, int(min(h / out_h, w / out_w)))
+                cloud = rec.point_cloud(stride=stride)
             _check_something_left(cloud.confidence, min_confidence, "point")
             if min_confidence is not None:
                 cloud = cloud.filtered(cloud.confidence >= min_confidence)

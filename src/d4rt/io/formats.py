@@ -45,6 +45,8 @@ DEFAULT_FPS = 10.0  # for the videos and the viewer when the input has no clock
 DEFAULT_MAX_POINTS = 50_000
 # "auto" camera model: one camera unless the per-frame focal lengths' 90th / 10th percentiles differ more.
 CAMERA_CHOICES = ("auto", "single", "per-frame")
+# Where the point cloud comes from: the decoded depth maps and cameras, or the paper's direct queries.
+POINT_SOURCES = ("depth", "queries")
 ZOOM_SPREAD = 1.15
 
 
