@@ -46,7 +46,7 @@ def register(subparsers) -> None:
                        help="torch device: auto (the default: cuda if available), cpu, cuda, cuda:1, ...")
     model.add_argument("--dtype", choices=("auto", "bf16", "fp32"), default="auto",
                        help="auto (the default): bfloat16 autocast where the device computes it natively (GPUs, "
-                            "CPUs with AMX-BF16 or AVX512-BF16: about 2x faster, depth within 0.1%%), else float32")
+                            "CPUs with AMX-BF16 or AVX512-BF16), else float32 (emulated bf16 is slower)")
     model.add_argument("--bf16", action="store_const", const="bf16", dest="dtype", help="same as --dtype bf16")
     outputs = p.add_argument_group("outputs")
     outputs.add_argument("--intrinsics", metavar="FX,FY,CX,CY", default=None,

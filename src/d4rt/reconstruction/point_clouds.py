@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from d4rt.geometry.camera import unproject_depth
+from d4rt.geometry.camera import pixel_rays
 from d4rt.geometry.transforms import apply_transform
 from d4rt.reconstruction.results import PointCloud
 
@@ -30,9 +30,10 @@ def point_cloud_from_depth(depth: np.ndarray, confidence: np.ndarray, intrinsics
     rows, cols = np.arange(0, h, stride), np.arange(0, w, stride)
     d = depth[:, rows][:, :, cols].astype(np.float64)
     c = confidence[:, rows][:, :, cols]
-    # Unproject on the full grid's pixel centres, then keep the strided ones (intrinsics are for h x w).
-    cam = unproject_depth(depth.astype(np.float64), intrinsics)[:, rows][:, :, cols]
-    world = apply_transform(cam_to_world[:, None, None], cam)
+    # Only the strided pixel centres are unprojected (the intrinsics are those of the h x w maps).
+    pixel_x, pixel_y = np.meshgrid(cols.astype(np.float64), rows.astype(np.float64))
+    rays = pixel_rays(np.stack([pixel_x, pixel_y], -1)[None], intrinsics[:, None, None])
+    world = apply_transform(cam_to_world[:, None, None], rays * d[..., None])
     ys = np.minimum(((rows + 0.5) * height / h).astype(np.int64), height - 1)
     xs = np.minimum(((cols + 0.5) * width / w).astype(np.int64), width - 1)
     grid_y, grid_x = np.meshgrid(ys, xs, indexing="ij")
