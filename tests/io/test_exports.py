@@ -16,7 +16,8 @@ from trimesh.transformations import quaternion_matrix
 from d4rt.errors import UserError
 from d4rt.geometry.camera import pixel_to_uv, unproject_depth
 from d4rt.geometry.transforms import apply_transform, invert_rigid
-from d4rt.io import exports, formats
+from d4rt.io import exports, formats, output_plan, writers
+from d4rt.io.exports import export_reconstruction
 from d4rt.io.depth_png import read_depth_png
 from d4rt.synthetic import render_clip
 from d4rt.viz.overlay import project_tracks
@@ -33,9 +34,10 @@ def clip():
 @pytest.fixture(scope="module")
 def saved(clip, tmp_path_factory):
     out = tmp_path_factory.mktemp("exports") / "out"
-    names = [f for f in exports.FORMATS if f != "rerun" or formats.rerun_available()]
-    paths = clip.reconstruction().save(out, names, track_grid=GRID, timestamps=np.arange(5) / 12.0, fps=12.0)
-    assert sorted(p.name for p in paths) == sorted(exports.FORMATS[f].split("/")[0].split(" ")[0].rstrip(",")
+    names = [f for f in formats.FORMATS if f != "rerun" or formats.rerun_available()]
+    paths = export_reconstruction(clip.reconstruction(), out, names, track_grid=GRID, timestamps=np.arange(5) / 12.0,
+                                  fps=12.0)
+    assert sorted(p.name for p in paths) == sorted(formats.FORMATS[f].split("/")[0].split(" ")[0].rstrip(",")
                                                     for f in names)
     with np.load(out / "reconstruction.npz") as npz:
         return out, dict(npz)
@@ -68,7 +70,7 @@ def test_npz_holds_every_array_and_matches_ground_truth(clip, saved):
 
 def test_dense_tracks_file_matches_ground_truth_and_is_left_out_of_all(clip, saved):
     out, npz = saved
-    assert "dense-tracks" not in exports.parse_formats("all") and not any(k.startswith("dense") for k in npz)
+    assert "dense-tracks" not in formats.parse_formats("all") and not any(k.startswith("dense") for k in npz)
     t, h, w = clip.depth.shape
     with np.load(out / "dense_tracks.npz") as dense:
         src, world, cam = dense["sources"], dense["points_world"], dense["points_camera"]
@@ -86,9 +88,9 @@ def test_dense_tracks_file_matches_ground_truth_and_is_left_out_of_all(clip, sav
         assert dense["visibility"][np.arange(len(src)), src[:, 0]].min() == 1  # visible at its own source
     rec = clip.reconstruction()
     with pytest.raises(UserError, match="dense_resolution"):
-        exports.compute_outputs(rec, ["tum", "dense-tracks"], dense_resolution="huge")
+        output_plan.compute_outputs(rec, ["tum", "dense-tracks"], dense_resolution="huge")
     with pytest.raises(UserError, match="no encoder resolution"):  # the oracle has none
-        exports.compute_outputs(rec, ["dense-tracks"], dense_resolution="encoder")
+        output_plan.compute_outputs(rec, ["dense-tracks"], dense_resolution="encoder")
     assert rec.queries_decoded == 0  # both refused before any decoding
 
 
@@ -97,7 +99,8 @@ def test_known_intrinsics_hold_at_another_output_resolution(clip, tmp_path):
     ratio too): unprojecting the saved depth with the saved intrinsics gives the true 3D points."""
     h, w = 21, 17
     assert np.ptp(clip.intrinsics[:, 0, 0]) > 1  # this clip zooms: one K per frame
-    clip.reconstruction().save(tmp_path / "o", ["npz"], resolution=(h, w), intrinsics=clip.intrinsics)
+    export_reconstruction(clip.reconstruction(), tmp_path / "o", ["npz"], resolution=(h, w),
+                          intrinsics=clip.intrinsics)
     with np.load(tmp_path / "o" / "reconstruction.npz") as npz:
         depth, k = npz["depth"], npz["intrinsics"]
         np.testing.assert_array_equal(npz["video_intrinsics"], clip.intrinsics)
@@ -121,16 +124,16 @@ def test_depth_pngs_round_trip(clip, saved):
 
 def test_confidence_threshold_filters_points_and_depth_pixels(clip, tmp_path):
     rec = clip.reconstruction()  # the oracle's confidence is 1 wherever it answers
-    kept = exports.compute_outputs(rec, ["ply", "depth"], min_confidence=0.5, point_stride=4)
+    kept = output_plan.compute_outputs(rec, ["ply", "depth"], min_confidence=0.5, point_stride=4)
     assert len(kept.points) == 5 * 8 * 10 and kept.depth_valid().all()
     # A threshold that leaves nothing is an error naming the range found, not an empty file.
     for formats, source, what in ((["ply"], "queries", "no point"), (["ply"], "depth", "no depth pixel"),
                                   (["depth"], "depth", "no depth pixel")):
         with pytest.raises(UserError, match=f"{what} has confidence >= 1.5 .*confidences are all 1\\)"):
-            exports.compute_outputs(rec, formats, min_confidence=1.5, point_stride=4, points_from=source)
+            output_plan.compute_outputs(rec, formats, min_confidence=1.5, point_stride=4, points_from=source)
     # Pixels below the threshold are 0 (no depth) in the PNGs.
     kept.confidence[1:] = 0.25
-    exports.write_outputs(kept, tmp_path / "o", ["depth"])
+    writers.write_outputs(kept, tmp_path / "o", ["depth"])
     scale = json.loads((tmp_path / "o" / "depth" / "depth_scale.json").read_text())["depth_scale"]
     assert read_depth_png(tmp_path / "o" / "depth" / "000000.png", scale).all()
     assert not read_depth_png(tmp_path / "o" / "depth" / "000001.png", scale).any()
@@ -208,7 +211,7 @@ def test_colmap_points_are_tracks_that_survive_bundle_adjustment(tmp_path):
     pycolmap = pytest.importorskip("pycolmap")
     clip = render_clip(6, 6, 36, 48, environment="room", num_objects=3, moving_fraction=0.0, articulated=False,
                        camera_motion="orbit", zoom=False)
-    clip.reconstruction().save(tmp_path / "o", ["colmap"], max_points=300, track_grid=0)
+    export_reconstruction(clip.reconstruction(), tmp_path / "o", ["colmap"], max_points=300, track_grid=0)
     rec = pycolmap.Reconstruction(str(tmp_path / "o" / "colmap" / "sparse" / "0"))
     assert rec.num_cameras() == 1 and 100 < rec.num_points3D() <= 300  # one shared camera, a bounded cloud
     errors = _reprojection_errors(rec)
@@ -275,20 +278,20 @@ def test_failed_save_leaves_nothing_behind(clip, tmp_path, monkeypatch):
     def broken(*args):
         raise OSError("disk full")
 
-    monkeypatch.setitem(exports._WRITERS, "tum", broken)
+    monkeypatch.setitem(writers._WRITERS, "tum", broken)
     target = tmp_path / "deeper" / "out"
     with pytest.raises(OSError, match="disk full"):
-        rec.save(target, ["ply", "tum"], point_stride=4)
+        export_reconstruction(rec, target, ["ply", "tum"], point_stride=4)
     assert list(tmp_path.iterdir()) == []  # no output folder, no parents, no staging folder
 
     target.mkdir(parents=True)
     (target / "points.ply").write_text("old")
     (target / "stale.txt").write_text("an earlier run's")
     with pytest.raises(OSError):
-        rec.save(target, ["ply", "tum"], point_stride=4, overwrite=True)
+        export_reconstruction(rec, target, ["ply", "tum"], point_stride=4, overwrite=True)
     assert (target / "points.ply").read_text() == "old" and sorted(p.name for p in target.parent.iterdir()) == ["out"]
     monkeypatch.undo()
-    rec.save(target, ["ply"], point_stride=4, overwrite=True)  # the folder as a whole is replaced
+    export_reconstruction(rec, target, ["ply"], point_stride=4, overwrite=True)  # the folder as a whole is replaced
     assert sorted(p.name for p in target.iterdir()) == ["points.ply"]
     assert (target / "points.ply").read_bytes().startswith(b"ply\n")
     assert sorted(p.name for p in target.parent.iterdir()) == ["out"]  # no staging or old folder left
@@ -302,26 +305,26 @@ def test_a_non_empty_output_folder_is_refused_before_any_work(clip, tmp_path, mo
     rec = clip.reconstruction()
     monkeypatch.setattr(exports, "compute_outputs", lambda *a, **k: pytest.fail("decoded before refusing"))
     with pytest.raises(UserError, match="is not empty: pass --overwrite"):
-        rec.save(target, ["tum"])
+        export_reconstruction(rec, target, ["tum"])
     assert [p.name for p in target.iterdir()] == ["mine.txt"]
     monkeypatch.undo()
     (target / "mine.txt").unlink()
-    rec.save(target, ["tum"])  # an empty folder is fine
+    export_reconstruction(rec, target, ["tum"])  # an empty folder is fine
     assert [p.name for p in target.iterdir()] == ["trajectory_tum.txt"]
 
 
 def test_format_names_and_missing_rerun(clip, tmp_path, monkeypatch, capsys):
     with pytest.raises(UserError, match="unknown output format"):
-        exports.parse_formats("ply,obj")
-    assert exports.parse_formats("tum, ply") == ["ply", "tum"]
+        formats.parse_formats("ply,obj")
+    assert formats.parse_formats("tum, ply") == ["ply", "tum"]
     monkeypatch.setattr(formats, "rerun_available", lambda: False)
     with pytest.raises(UserError, match="needs the rerun-sdk package"):
-        exports.parse_formats("rerun")
-    assert "rerun" not in exports.parse_formats("all")
+        formats.parse_formats("rerun")
+    assert "rerun" not in formats.parse_formats("all")
     assert capsys.readouterr().err.count("\n") == 1  # a one-line notice
     (tmp_path / "file").write_text("")
     with pytest.raises(UserError, match="not a directory"):
-        clip.reconstruction().save(tmp_path / "file", ["tum"])
+        export_reconstruction(clip.reconstruction(), tmp_path / "file", ["tum"])
 
 
 def test_binary_layout_of_the_colmap_files(saved):

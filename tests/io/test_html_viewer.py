@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from d4rt.io.exports import export_reconstruction
 from d4rt.synthetic import render_clip
 from subprocess_budget import budget
 
@@ -20,7 +21,7 @@ BACKGROUND = (0x14, 0x16, 0x1A)  # the page's background colour
 def page(tmp_path_factory):
     clip = render_clip(4, 4, 30, 40, environment="room", num_objects=3, camera_motion="orbit")
     out = tmp_path_factory.mktemp("viewer") / "out"
-    clip.reconstruction().save(out, ["html"], track_grid=4)
+    export_reconstruction(clip.reconstruction(), out, ["html"], track_grid=4)
     return out / "viewer.html"
 
 

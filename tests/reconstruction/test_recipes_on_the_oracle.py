@@ -107,7 +107,7 @@ def test_one_shared_square_pixel_camera_is_exact_for_a_video_without_zoom():
 def test_exports_keep_one_camera_unless_the_video_zooms(tmp_path, capsys):
     """The exports' default ("auto"): one camera where the per-frame focal lengths agree, per-frame
     cameras (with a notice) where they do not; every export uses the same intrinsics."""
-    from d4rt.io.exports import compute_outputs
+    from d4rt.io.output_plan import compute_outputs
 
     steady = render_clip(5, 6, 36, 60, zoom=False, num_objects=3)
     out = compute_outputs(steady.reconstruction(), ["npz"], track_grid=0)
@@ -126,7 +126,7 @@ def test_point_clouds_from_depth_and_cameras_equal_the_direct_recipe(clip):
     """The exports' default cloud (depth maps unprojected through the cameras, no further query) and the
     paper's direct recipe (t_cam = 0) give the same points on exact answers, for one window and for
     windows stitched by Sim(3)."""
-    from d4rt.io.exports import compute_outputs
+    from d4rt.io.output_plan import compute_outputs
 
     for rec in (clip.reconstruction(), clip.reconstruction(window=5, overlap=2)):
         derived = compute_outputs(rec, ["ply"], point_stride=3, camera="per-frame")

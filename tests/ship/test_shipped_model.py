@@ -109,7 +109,7 @@ def test_derived_and_direct_point_clouds_of_the_model_agree_within_tolerance(roo
     on a 12-frame room clip, where the derived cloud was also the closer of the two to the truth after a
     Sim(3) fit, 0.62 vs 0.68); the bound leaves room for that and catches a broken derivation (which
     would be off by the scene's size)."""
-    from d4rt.io.exports import compute_outputs
+    from d4rt.io.output_plan import compute_outputs
 
     rec = D4RT.from_pretrained().reconstruct(room_clip.rgb, progress=False)
     derived = compute_outputs(rec, ["ply"], point_stride=2)

@@ -14,7 +14,7 @@ import torch
 
 from d4rt.benchmark.options import BenchOptions
 from d4rt.benchmark.timing import best_time
-from d4rt.reconstruction.reconstruction import DEFAULT_GRID
+from d4rt.reconstruction.reconstruction import DEFAULT_GRID, Reconstruction
 
 
 def bench_pose(model, video: torch.Tensor, options: BenchOptions) -> dict:
@@ -25,7 +25,7 @@ def bench_pose(model, video: torch.Tensor, options: BenchOptions) -> dict:
     grid = {} if options.pose_grid is None else {"grid": options.pose_grid}
 
     def run():
-        return model.reconstruct(video, progress=False, **grid).cameras()
+        return Reconstruction.from_model(model, video, progress=False, **grid).cameras()
 
     with options.autocast():
         seconds = best_time(run, device, options.repeats)

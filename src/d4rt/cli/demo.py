@@ -58,7 +58,7 @@ def tum_frames_dir() -> Path:
 
 
 def run(args) -> int:
-    from d4rt.io.exports import check_output_dir
+    from d4rt.io.formats import check_output_dir
 
     out = check_output_dir(args.out, args.overwrite or is_demo_output(Path(args.out)))
     model = bundled_model()
@@ -75,6 +75,8 @@ def is_demo_output(folder: Path) -> bool:
 
 
 def run_synthetic(model, out: Path) -> None:
+    from d4rt.io.exports import export_reconstruction
+    from d4rt.reconstruction import Reconstruction
     from d4rt.synthetic import render_clip
 
     start = time.perf_counter()
@@ -83,10 +85,10 @@ def run_synthetic(model, out: Path) -> None:
     print(f"synthetic clip: {clip.num_frames} frames of {clip.width}x{clip.height} rendered in "
           f"{time.perf_counter() - start:.1f} s ({info['environment']}, camera {info['camera_motion']}, "
           f"{clip.num_bodies - 1} rigid bodies)")
-    rec = model.reconstruct(clip.rgb) if model is not None else clip.reconstruction()
+    rec = Reconstruction.from_model(model, clip.rgb) if model is not None else Reconstruction.from_clip(clip)
     fps = info["options"]["fps"] / info["options"]["time_stride"]
-    paths = rec.save(out, timestamps=np.asarray(info["times"]), fps=fps, point_stride=POINT_STRIDE, overwrite=True,
-                     progress=True)
+    paths = export_reconstruction(rec, out, timestamps=np.asarray(info["times"]), fps=fps, point_stride=POINT_STRIDE,
+                                  overwrite=True, progress=True)
     print(f"wrote {out}/: {', '.join(p.name for p in paths)}")
     with np.load(out / "reconstruction.npz") as saved:
         for line in accuracy_report(clip, dict(saved)):
@@ -96,7 +98,9 @@ def run_synthetic(model, out: Path) -> None:
 def run_real(model, out: Path, resolution=(120, 160), point_stride: int = 2) -> None:
     """The real frames (depth maps at ``resolution``, a quarter of the input size by default: the bundled
     model sees 64x64 frames, so finer maps would only interpolate, and the queries stay few on a CPU)."""
+    from d4rt.io.exports import export_reconstruction
     from d4rt.io.frames import load_frames
+    from d4rt.reconstruction import Reconstruction
 
     frames_dir = tum_frames_dir()
     if model is None:
@@ -104,9 +108,9 @@ def run_real(model, out: Path, resolution=(120, 160), point_stride: int = 2) -> 
               "reconstruct real video yet (the oracle exists only for synthetic clips).")
         return
     frames = load_frames(frames_dir, progress=True)
-    rec = model.reconstruct(frames.rgb)
-    paths = rec.save(out, timestamps=frames.timestamps, fps=frames.fps, resolution=resolution,
-                     point_stride=point_stride, overwrite=True, progress=True)
+    rec = Reconstruction.from_model(model, frames.rgb)
+    paths = export_reconstruction(rec, out, timestamps=frames.timestamps, fps=frames.fps, resolution=resolution,
+                                  point_stride=point_stride, overwrite=True, progress=True)
     print(f"wrote {out}/: {', '.join(p.name for p in paths)}")
     with np.load(out / "reconstruction.npz") as saved:
         shared = float(np.median(saved["video_intrinsics"][:, 0, 0]))
@@ -123,6 +127,7 @@ def accuracy_report(clip, saved: dict) -> list[str]:
     (APD3D and L1 after median scaling, D4RT Tab. 4)."""
     from d4rt.evaluation.metrics import depth_metrics, pose_metrics, world_track_metrics
     from d4rt.geometry.transforms import apply_transform, invert_rigid
+    from d4rt.reconstruction import Reconstruction
 
     lines = []
     if saved["depth"].shape == clip.depth.shape:
@@ -138,7 +143,7 @@ def accuracy_report(clip, saved: dict) -> list[str]:
                  f"{travelled:.2f} m long), RPE {pose['rpe_trans']:.3g} m / {pose['rpe_rot']:.3g} deg (frame-to-frame "
                  f"drift), focal length error {focal:.3g} ({focal:.1%} of the true focal length)")
 
-    truth = clip.reconstruction().tracks(saved["track_queries"], frame="world")
+    truth = Reconstruction.from_clip(clip).tracks(saved["track_queries"], frame="world")
     gt_tracks = np.swapaxes(truth.points, 0, 1)  # (T, N, 3)
     gt_depth = apply_transform(invert_rigid(gt_poses)[:, None], gt_tracks)[..., 2]  # each frame's own camera
     k = clip.intrinsics

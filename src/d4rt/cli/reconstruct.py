@@ -1,6 +1,7 @@
 """``d4rt reconstruct INPUT -o OUT_DIR``: a video (file, image folder or array) to every 4D output.
 
-A thin layer over the Python API: ``load_frames`` -> ``model.reconstruct`` -> ``Reconstruction.save``.
+A thin layer over the Python API: ``load_frames`` -> ``Reconstruction.from_model`` ->
+``d4rt.io.exports.export_reconstruction``.
 """
 
 from __future__ import annotations
@@ -229,23 +230,23 @@ def run(args) -> int:
 
 def reconstruct_clip(model, rgb, timestamps, out_dir, args, formats, save_options, overwrite=None) -> list:
     """One shot: encode (with a progress bar on the encoder), decode and write its outputs."""
-    from d4rt.reconstruction import ModelSource, Reconstruction
+    from d4rt.io.exports import export_reconstruction
+    from d4rt.reconstruction import Reconstruction
 
     with progress_bar(desc="encode", unit="window", bar_format="{desc}: {n} window encodings [{elapsed}]") as bar:
-        # What model.reconstruct(video, window=, overlap=) builds, with a progress bar on the encoder.
-        source = ModelSource(model, rgb, max_window=args.window, on_encode=bar.update)
-        rec = Reconstruction(source, rgb, window=args.window, overlap=args.overlap, progress=True)
+        rec = Reconstruction.from_model(model, rgb, window=args.window, overlap=args.overlap, on_encode=bar.update,
+                                        progress=True)
         print(describe_work(rec, formats, save_options["resolution"], args.point_stride, args.tracks, args.max_points,
                             args.points_from))
-        return rec.save(out_dir, formats, overwrite=args.overwrite if overwrite is None else overwrite,
-                        timestamps=timestamps, **save_options)
+        return export_reconstruction(rec, out_dir, formats, overwrite=args.overwrite if overwrite is None else overwrite,
+                                     timestamps=timestamps, **save_options)
 
 
 def reconstruct_shots(model, frames, shots, out_dir, args, formats, save_options) -> list:
     """Each shot into its own folder (shot_000, ...) and a summary, shots.json: the cuts, and per shot its
     frames (of the frames used, and of the source) and folder, or why it was skipped. The whole folder
     appears at once when every shot is written (the exports' staging)."""
-    from d4rt.io.exports import staged_folder
+    from d4rt.io.staging import staged_folder
 
     rows = []
     with staged_folder(out_dir) as stage:

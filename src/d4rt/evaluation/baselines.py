@@ -15,6 +15,7 @@ import numpy as np
 from d4rt.errors import UserError
 from d4rt.evaluation.predictions import Prediction, Predictor, ReconstructionPredictor
 from d4rt.evaluation.sequence import EvalSequence
+from d4rt.reconstruction import Reconstruction
 
 BASELINES = ("oracle", "constant-depth", "colmap")
 
@@ -25,7 +26,7 @@ class OraclePredictor:
     name = "oracle"
 
     def __init__(self):
-        self._recipes = ReconstructionPredictor(self.name, lambda sequence: sequence.clip.reconstruction())
+        self._recipes = ReconstructionPredictor(self.name, lambda sequence: Reconstruction.from_clip(sequence.clip))
 
     def predict(self, sequence: EvalSequence, tasks: set[str]) -> Prediction:
         if sequence.clip is not None:

@@ -14,6 +14,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from d4rt.evaluation.sequence import EvalSequence
+from d4rt.reconstruction import Reconstruction
 
 
 @dataclass(eq=False)
@@ -79,4 +80,4 @@ def d4rt_predictor(checkpoint: str, device: str = "cpu") -> ReconstructionPredic
     from d4rt.model import D4RT
 
     model = D4RT.from_pretrained(checkpoint, device=device)
-    return ReconstructionPredictor("d4rt", lambda sequence: model.reconstruct(sequence.rgb))
+    return ReconstructionPredictor("d4rt", lambda sequence: Reconstruction.from_model(model, sequence.rgb))

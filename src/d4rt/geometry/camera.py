@@ -32,6 +32,21 @@ def pixel_to_uv(xy: Array, height: int, width: int) -> Array:
     return _stack([u, v], xy)
 
 
+def pixel_grid(height: int, width: int, stride: int = 1) -> np.ndarray:
+    """Every ``stride``-th pixel centre of an image, row-major: (N, 2) float64 (x, y), N = ceil(H / stride)
+    * ceil(W / stride)."""
+    ys, xs = np.meshgrid(np.arange(0, height, stride), np.arange(0, width, stride), indexing="ij")
+    return np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64)
+
+
+def cell_centres_uv(n: int) -> np.ndarray:
+    """The centres of an n x n grid of equal cells over the image in normalised (u, v), row-major:
+    (n * n, 2) float64. A grid independent of the image's size (the camera recipe's and the track grid)."""
+    c = (np.arange(n) + 0.5) / n
+    u, v = np.meshgrid(c, c)
+    return np.stack([u.ravel(), v.ravel()], 1)
+
+
 def project(points: Array, intrinsics: Array) -> tuple[Array, Array]:
     """Camera-frame points -> pixel coordinates and depth.
 

@@ -42,6 +42,17 @@ def apply_rotation(transform: Array, vectors: Array) -> Array:
     return r[..., :, 0] * x + r[..., :, 1] * y + r[..., :, 2] * z
 
 
+def similarity_times_pose(sim: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """A rigid pose (4, 4) after a Sim(3) ``sim`` (4, 4, [sR | t]) -> rigid (4, 4): the camera's rotation
+    turns by R and its centre maps by the Sim(3) (a scale applies to positions, not to orientations)."""
+    scale = np.cbrt(np.linalg.det(sim[:3, :3]))
+    rot = sim[:3, :3] / scale
+    out = np.eye(4)
+    out[:3, :3] = rot @ pose[:3, :3]
+    out[:3, 3] = sim[:3, :3] @ pose[:3, 3] + sim[:3, 3]
+    return out
+
+
 def rotation_about_axis(axis: np.ndarray, angle: float | np.ndarray) -> np.ndarray:
     """Rodrigues' formula. axis: (3,) (normalised inside); angle: scalar or (...,) radians -> (..., 3, 3)."""
     axis = np.asarray(axis, dtype=np.float64)

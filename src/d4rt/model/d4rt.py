@@ -173,16 +173,17 @@ class D4RT(nn.Module):
         return EncodedScene(self, tokens, frames, height, width, patch_video)
 
     def reconstruct(self, video: Any, *, window: int | None = None, overlap: int | None = None, **options):
-        """Every 4D output of a video through queries: a :class:`d4rt.reconstruction.Reconstruction`.
+        """Every 4D output of a video through queries: ``Reconstruction.from_model(self, video, ...)``
+        (:class:`d4rt.reconstruction.Reconstruction`).
 
         Videos longer than ``max_frames`` (or ``window``) are encoded window by window (overlapping by
         ``overlap`` frames) and stitched by Sim(3); ``options`` go to ``Reconstruction``.
         """
-        # Imported here: the reconstruction layer sits above the model and imports it, not vice versa.
-        from d4rt.reconstruction import ModelSource, Reconstruction
+        # A shortcut kept because outside code relies on it (issue 4's fixed interface); the one upward
+        # reference of this layer, resolved at call time and allowed by name in docs/architecture.md.
+        from d4rt.reconstruction import Reconstruction
 
-        return Reconstruction(ModelSource(self, video, max_window=window), video, window=window, overlap=overlap,
-                              **options)
+        return Reconstruction.from_model(self, video, window=window, overlap=overlap, **options)
 
     # ------------------------------------------------------------------------------------ weights
     def save_pretrained(self, directory: str | Path) -> Path:

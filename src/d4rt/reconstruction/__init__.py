@@ -1,8 +1,9 @@
 """Everything from queries: depth, point clouds, 3D tracks, cameras, dense tracking, long videos."""
 
-from d4rt.reconstruction.reconstruction import Reconstruction, plan_windows
+from d4rt.reconstruction.reconstruction import Reconstruction
 from d4rt.reconstruction.results import Cameras, DenseTracks, Depth, PointCloud, Tracks
 from d4rt.reconstruction.sources import AnswererSource, ModelSource
+from d4rt.reconstruction.windows import plan_windows
 
 __all__ = [
     "AnswererSource",

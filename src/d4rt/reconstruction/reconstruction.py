@@ -5,30 +5,29 @@ The same recipes run on the trained model's encoded scene and on the synthetic e
 on the oracle they must be exact, which tests the recipes independently of how well a model is
 trained.
 
-Long videos are cut into overlapping windows the answerer can take (the model's ``max_frames``). Each
-window has its own world (the camera of its first frame) and, for a model, its own scale; window w is
-mapped into the global world (the camera of frame 0) by a Sim(3) fitted with Umeyama on the most
-confident 85% of the points its overlap shares with window w - 1 (App. B). Every frame is answered by
-the first window that contains it.
+Long videos are cut into overlapping windows the answerer can take (the model's ``max_frames``), each
+aligned to the global world (camera 0) by Sim(3) and answering the frames it owns
+(:mod:`d4rt.reconstruction.windows`, App. B).
 """
 
 from __future__ import annotations
 
-from contextlib import contextmanager
 from functools import cached_property
 
 import numpy as np
 import torch
-from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
-from d4rt.geometry.camera import pixel_to_uv
-from d4rt.geometry.transforms import invert_rigid
-from d4rt.geometry.umeyama import Similarity, umeyama
+from d4rt.geometry.camera import cell_centres_uv, pixel_grid, pixel_to_uv
+from d4rt.geometry.transforms import invert_rigid, similarity_times_pose
+from d4rt.geometry.umeyama import Similarity
+from d4rt.progress import progress_bar
 from d4rt.reconstruction.cameras import intrinsics_from_points, relative_poses
 from d4rt.reconstruction.dense import occupancy_tracking
 from d4rt.reconstruction.results import Cameras, DenseTracks, Depth, PointCloud, Tracks
-from d4rt.reconstruction.sources import as_source
+from d4rt.reconstruction.query_patterns import grid_queries, track_queries
+from d4rt.reconstruction.sources import AnswererSource, ModelSource, as_source
+from d4rt.reconstruction.windows import align_windows, hand_off, keeping_windows, owned, owners, plan_windows
 
 KEYS = ("points", "uv", "visibility", "confidence")
 
@@ -67,6 +66,23 @@ class Reconstruction:
         self.windows = plan_windows(self.num_frames, window or self.source.max_window, overlap)
         self.queries_decoded = 0  # every query answered so far (the recipes' cost)
 
+    @classmethod
+    def from_model(cls, model, video, *, window: int | None = None, overlap: int | None = None,
+                   on_encode=None, **options) -> "Reconstruction":
+        """The recipes over a D4RT model (anything with ``encode(video) -> answerer`` and ``config``):
+        each window of ``video`` (T, H, W, 3) is encoded when first asked for (:class:`ModelSource`);
+        ``on_encode`` is called after each encode (a progress bar's update, say); ``options`` as for
+        the constructor."""
+        source = ModelSource(model, video, max_window=window, on_encode=on_encode)
+        return cls(source, video, window=window, overlap=overlap, **options)
+
+    @classmethod
+    def from_clip(cls, clip, *, window: int | None = None, overlap: int | None = None, **options) -> "Reconstruction":
+        """The recipes over a clip's exact oracle (a :class:`d4rt.synthetic.Clip`, or anything with
+        ``oracle`` and ``rgb``): depth, cameras, tracks and point clouds are its ground truth; ``window``
+        splits it into overlapping windows, to test long-video stitching exactly."""
+        return cls(AnswererSource(clip.oracle, max_window=window), clip.rgb, window=window, overlap=overlap, **options)
+
     # ------------------------------------------------------------------------------------------------
     # Asking
 
@@ -91,57 +107,22 @@ class Reconstruction:
                 answers[k][i:i + len(part)] = part
         return answers
 
-    def _owners(self, frames) -> np.ndarray:
-        """The first window containing each frame: (N,) int64. Windows are ordered and overlap, so it is
-        the first one that stops after the frame."""
-        stops = np.array([b for _, b in self.windows])
-        return np.searchsorted(stops, np.asarray(frames), side="right").astype(np.int64)
-
-    def _owned(self, w: int) -> range:
-        start, stop = self.windows[w]
-        return range(self.windows[w - 1][1] if w else start, stop)
-
-    def _grid_uv(self, n: int | None = None) -> np.ndarray:
-        """(n*n, 2) normalised positions of a regular grid of pixel-like cells."""
-        n = n or self.grid
-        c = (np.arange(n) + 0.5) / n
-        u, v = np.meshgrid(c, c)
-        return np.stack([u.ravel(), v.ravel()], 1)
-
-    def _pixel_uv(self, height: int, width: int) -> np.ndarray:
-        """(H*W, 2) normalised positions of every pixel centre of an H x W image, row-major."""
-        ys, xs = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
-        return pixel_to_uv(np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float64), height, width)
-
     # ------------------------------------------------------------------------------------------------
-    # Window alignment (App. B)
+    # Window alignment (App. B; d4rt.reconstruction.windows)
 
     @cached_property
     def window_to_world(self) -> list[Similarity]:
         """Sim(3) from each window's world (camera of its first frame) to the global world (camera 0)."""
-        sims = [Similarity(torch.eye(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64),
-                           torch.ones((), dtype=torch.float64))]
-        uv = self._grid_uv()
-        for w in range(1, len(self.windows)):
-            (a0, b0), (a1, _) = self.windows[w - 1], self.windows[w]
-            shared = np.arange(a1, b0)
-            q_prev = _queries(uv, shared, shared, np.full_like(shared, a0))
-            q_this = _queries(uv, shared, shared, np.full_like(shared, a1))
-            prev, this = self._ask(w - 1, q_prev), self._ask(w, q_this)
-            conf = prev["confidence"] * this["confidence"]
-            ok = np.isfinite(conf) & (conf > 0) & np.isfinite(prev["points"]).all(1) & np.isfinite(this["points"]).all(1)
-            keep = np.nonzero(ok)[0]
-            if len(keep) < 3:
-                raise UserError(f"windows {w - 1} and {w} share too few confident points to be aligned")
-            # The most confident align_fraction of the shared points (ties broken by order).
-            order = keep[np.argsort(-conf[keep], kind="stable")]
-            keep = order[: max(3, int(np.ceil(self.align_fraction * len(order))))]
-            target = sims[w - 1].apply(torch.from_numpy(prev["points"][keep]))
-            sims.append(umeyama(torch.from_numpy(this["points"][keep]), target, with_scale=True))
-        return sims
+        return align_windows(self.windows, self._ask, cell_centres_uv(self.grid), self.align_fraction)
 
     def _window_scale(self, w: int) -> float:
         return float(self.window_to_world[w].scale)
+
+    def _window_to_reference(self, w: int, points: np.ndarray, world_to_ref: np.ndarray) -> np.ndarray:
+        """Points (..., 3) in window w's world -> the reference camera: the window's Sim(3) into the
+        global world, then the rigid global-world-to-reference-camera ``world_to_ref`` (4, 4)."""
+        p = self.window_to_world[w].apply(torch.from_numpy(points)).numpy()
+        return p @ world_to_ref[:3, :3].T + world_to_ref[:3, 3]
 
     # ------------------------------------------------------------------------------------------------
     # Recipes
@@ -155,12 +136,12 @@ class Reconstruction:
         Returns Depth(depth (T, H, W), confidence (T, H, W)), float32.
         """
         h, w = self.output_size(resolution)
-        uv = self._pixel_uv(h, w)
+        uv = pixel_to_uv(pixel_grid(h, w), h, w)
         depth = np.zeros((self.num_frames, h, w), dtype=np.float32)
         conf = np.zeros_like(depth)
         for win in range(len(self.windows)):
-            frames = np.array(self._owned(win))
-            out = self._ask(win, _queries(uv, frames, frames, frames))
+            frames = np.array(owned(self.windows, win))
+            out = self._ask(win, grid_queries(uv, frames, frames, frames))
             scale = self._window_scale(win)
             depth[frames] = (out["points"][:, 2] * scale).reshape(-1, h, w)
             conf[frames] = out["confidence"].reshape(-1, h, w)
@@ -170,17 +151,17 @@ class Reconstruction:
     def _camera_grid(self) -> tuple[list[dict], np.ndarray]:
         """Per frame i, the grid points seen in camera i (t_src = t_tgt = t_cam = i) and the rigid fit
         of camera i to the global world; the same answers serve intrinsics and poses."""
-        uv = self._grid_uv()
+        uv = cell_centres_uv(self.grid)
         n = len(uv)
         per_frame: list[dict] = [{} for _ in range(self.num_frames)]
         c2w = np.zeros((self.num_frames, 4, 4))
         for win in range(len(self.windows)):
-            frames = np.array(self._owned(win))
+            frames = np.array(owned(self.windows, win))
             first = self.windows[win][0]
             # One call, each point's two queries side by side: they differ only in t_cam, so the model
             # embeds their shared (u, v, t_src) once (EncodedScene.query, share_sources).
-            both = np.stack([_queries(uv, frames, frames, frames),
-                             _queries(uv, frames, frames, np.full_like(frames, first))], 1).reshape(-1, 5)
+            both = np.stack([grid_queries(uv, frames, frames, frames),
+                             grid_queries(uv, frames, frames, np.full_like(frames, first))], 1).reshape(-1, 5)
             answers = self._ask(win, both)
             here = {k: v[0::2] for k, v in answers.items()}
             there = {k: v[1::2] for k, v in answers.items()}
@@ -193,7 +174,7 @@ class Reconstruction:
             poses = relative_poses(here["points"].reshape(len(frames), n, 3), there["points"].reshape(len(frames), n, 3),
                                    weights)
             for j, f in enumerate(frames):
-                c2w[f] = _similarity_times_pose(sim, poses[j])
+                c2w[f] = similarity_times_pose(sim, poses[j])
         return per_frame, c2w
 
     def cameras(self, intrinsics=None, method: str = "median", reference_frame: int = 0, camera: str = "per-frame",
@@ -222,13 +203,13 @@ class Reconstruction:
             if k_all.shape != (t, 3, 3) or not np.isfinite(k_all).all():
                 raise UserError(f"intrinsics must be finite (3, 3) or ({t}, 3, 3), got shape {k_all.shape}")
         elif camera == "single":
-            uv = np.tile(self._grid_uv(), (t, 1))
+            uv = np.tile(cell_centres_uv(self.grid), (t, 1))
             points = np.concatenate([f["points"] for f in per_frame])
             confidence = np.concatenate([f["confidence"] for f in per_frame])
             k = intrinsics_from_points(points, uv, confidence, self.height, self.width, method, square_pixels)
             k_all = np.broadcast_to(k, (t, 3, 3)).copy()
         else:
-            uv = self._grid_uv()
+            uv = cell_centres_uv(self.grid)
             k_all = np.stack([intrinsics_from_points(f["points"], uv, f["confidence"], self.height, self.width, method,
                                                      square_pixels) for f in per_frame])
         return Cameras(k_all, invert_rigid(c2w[reference_frame]) @ c2w, reference_frame)
@@ -249,23 +230,21 @@ class Reconstruction:
         frame_list = np.arange(self.num_frames) if frames is None else np.asarray(frames, dtype=np.int64)
         for f in frame_list:
             self._check_frame(int(f), "frames")
-        ys, xs = np.meshgrid(np.arange(0, self.height, stride), np.arange(0, self.width, stride), indexing="ij")
-        xs, ys = xs.ravel(), ys.ravel()
-        uv = pixel_to_uv(np.stack([xs, ys], 1).astype(np.float64), self.height, self.width)
+        pixels = pixel_grid(self.height, self.width, stride)
+        uv = pixel_to_uv(pixels, self.height, self.width)
         single = len(self.windows) == 1
         if not single:
             world_to_ref = invert_rigid(self._global_pose(reference_frame))
         pts, conf, fr, pix = [], [], [], []
         for win in range(len(self.windows)):
-            mine = frame_list[self._owners(frame_list) == win].astype(np.int64)
+            mine = frame_list[owners(self.windows, frame_list) == win].astype(np.int64)
             if not len(mine):
                 continue
             cam = reference_frame if single else self.windows[win][0]
-            out = self._ask(win, _queries(uv, mine, mine, np.full_like(mine, cam)))
+            out = self._ask(win, grid_queries(uv, mine, mine, np.full_like(mine, cam)))
             p = out["points"]
             if not single:
-                p = self.window_to_world[win].apply(torch.from_numpy(p)).numpy()
-                p = p @ world_to_ref[:3, :3].T + world_to_ref[:3, 3]
+                p = self._window_to_reference(win, p, world_to_ref)
             c = out["confidence"]
             if visible_only:
                 seen = self._visible_from(reference_frame, uv, mine)
@@ -273,7 +252,7 @@ class Reconstruction:
             pts.append(p)
             conf.append(c)
             fr.append(np.repeat(mine, len(uv)))
-            pix.append(np.tile(np.stack([xs, ys], 1), (len(mine), 1)))
+            pix.append(np.tile(pixels.astype(np.int64), (len(mine), 1)))
         points, confidence = np.concatenate(pts), np.concatenate(conf)
         frames_out, pixels = np.concatenate(fr), np.concatenate(pix)
         keep = np.isfinite(points).all(1) & np.isfinite(confidence) & (confidence > 0)
@@ -293,7 +272,7 @@ class Reconstruction:
             inside = (frames >= a) & (frames < b)
             if inside.any():
                 fr = frames[inside]
-                out = self._ask(win, _queries(uv, fr, np.full_like(fr, reference_frame), np.full_like(fr, reference_frame)))
+                out = self._ask(win, grid_queries(uv, fr, np.full_like(fr, reference_frame), np.full_like(fr, reference_frame)))
                 mask = np.repeat(inside, len(uv))
                 seen[mask] |= out["visibility"] > 0.5
             break
@@ -319,7 +298,7 @@ class Reconstruction:
                "confidence": np.zeros((n, t))}
         uv0 = pixel_to_uv(src[:, 1:3], self.height, self.width)
         t0 = src[:, 0].astype(np.int64)
-        home = self._owners(t0)
+        home = owners(self.windows, t0)
         if frame == "world" and len(self.windows) > 1:
             world_to_ref = invert_rigid(self._global_pose(reference_frame))
         # Every track is decoded once in each window it reaches: its home window, then the windows after
@@ -346,57 +325,38 @@ class Reconstruction:
                 cam = frames
             else:
                 cam = np.full_like(frames, reference_frame if len(self.windows) == 1 else a)
-            q = _track_queries(starts_uv, starts_t, frames, cam)
+            q = track_queries(starts_uv, starts_t, frames, cam)
             ans = {k: v.reshape(len(idx), len(frames), *v.shape[1:]) for k, v in self._ask(win, q).items()}
             p = ans["points"]
             if len(self.windows) > 1:
                 if frame == "camera":
                     p = p * self._window_scale(win)
                 else:
-                    p = self.window_to_world[win].apply(torch.from_numpy(p)).numpy()
-                    p = p @ world_to_ref[:3, :3].T + world_to_ref[:3, 3]
-            owned = np.array(self._owned(win)) - a
+                    p = self._window_to_reference(win, p, world_to_ref)
+            mine = np.array(owned(self.windows, win)) - a  # the window's own frames, window-relative
             values = (("points", p), ("uv", ans["uv"]), ("visibility", ans["visibility"]),
                       ("confidence", ans["confidence"]))
-            if direction == 1 and owned[0] > 0:
+            if direction == 1 and mine[0] > 0:
                 # The home window's answers for the frames it shares with earlier windows: kept where the
                 # backward hand-off fails (those windows then never see the track), overwritten where not.
                 home_rows = np.nonzero(home[idx] == win)[0]
                 for key, value in values:
-                    out[key][idx[home_rows, None], np.arange(owned[0]) + a] = value[home_rows, :owned[0]]
+                    out[key][idx[home_rows, None], np.arange(mine[0]) + a] = value[home_rows, :mine[0]]
             for key, value in values:
-                out[key][idx[:, None], owned + a] = value[:, owned]
+                out[key][idx[:, None], mine + a] = value[:, mine]
             if direction == 1:
                 forward[:] = False
-                ok, new_uv, new_t = self._hand_off(ans, win, win + 1)
+                ok, new_uv, new_t = hand_off(self.windows, ans, win, win + 1)
                 handle_uv[idx[ok]], handle_t[idx[ok]] = new_uv[ok], new_t[ok]
                 forward[idx[ok]] = True
                 starting = home[idx] == win  # their backward journey starts from these answers
             else:
                 starting = np.ones(len(idx), dtype=bool)
                 back_window[idx] = -1
-            ok, new_uv, new_t = self._hand_off(ans, win, win - 1)
+            ok, new_uv, new_t = hand_off(self.windows, ans, win, win - 1)
             go = starting & ok
             back_uv[idx[go]], back_t[idx[go]], back_window[idx[go]] = new_uv[go], new_t[go], win - 1
         return Tracks(out["points"], out["visibility"], out["confidence"], out["uv"], frame, reference_frame)
-
-    def _hand_off(self, answers: dict, win: int, nxt: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Where tracks decoded in window ``win`` continue in window ``nxt``: for each, the frame shared
-        by both where it is most visible and its (u, v) there. Returns (ok (N,), uv (N, 2), frame (N,));
-        ok is False where there is no such window or the track is hidden (or outside the image) in
-        every shared frame: it cannot be carried."""
-        count = len(answers["uv"])
-        if not 0 <= nxt < len(self.windows):
-            return np.zeros(count, dtype=bool), np.zeros((count, 2)), np.zeros(count, dtype=np.int64)
-        (a, b), (na, nb) = self.windows[win], self.windows[nxt]
-        shared = np.arange(max(a, na), min(b, nb)) - a
-        vis = np.nan_to_num(answers["visibility"][:, shared], nan=0.0)  # NaN must not win argmax
-        best = np.argmax(vis, axis=1)
-        rows = np.arange(count)
-        k = shared[best]
-        uv = answers["uv"][rows, k]
-        ok = (vis[rows, best] > 0.5) & np.all((uv >= 0) & (uv <= 1), 1)
-        return ok, uv, k + a
 
     def dense_tracks(self, resolution: tuple[int, int] | None = None, batch_size: int = 1024,
                      visibility_threshold: float = 0.5) -> DenseTracks:
@@ -422,21 +382,11 @@ class Reconstruction:
             tr = self.tracks(pixels, frame="camera")
             return {"points": tr.points, "uv": tr.uv, "visibility": tr.visibility, "confidence": tr.confidence}
 
-        with _keeping_windows(self.source, len(self.windows)):
+        with keeping_windows(self.source, len(self.windows)):
             res = occupancy_tracking(ask, t, h, w, batch_size, visibility_threshold, progress=bool(self.progress))
         tracks = Tracks(res["points"], res["visibility"], res["confidence"], res["uv"], "camera", 0)
         return DenseTracks(tracks, res["sources"], self.queries_decoded - start, t * t * h * w,
                            float(res["grid"].mean()), (h, w))
-
-    def save(self, directory, formats="all", **options) -> list:
-        """Write the outputs ("all", or names such as ``["npz", "ply", "colmap"]``: see
-        ``d4rt.io.exports.FORMATS``) into ``directory`` (new or empty; ``overwrite=True`` replaces it),
-        atomically; ``options`` (resolution, intrinsics, camera, square_pixels, min_confidence, point_stride,
-        track_grid, track_frame, dense_resolution, max_points, timestamps, fps, progress) are those of
-        ``d4rt.io.exports.compute_outputs``. Returns the paths written."""
-        from d4rt.io.exports import save  # the I/O layer sits above this one
-
-        return save(self, directory, formats, **options)
 
     # ------------------------------------------------------------------------------------------------
 
@@ -481,63 +431,8 @@ class Reconstruction:
         return p
 
 
-def plan_windows(num_frames: int, window: int | None, overlap: int | None = None) -> list[tuple[int, int]]:
-    """Overlapping [start, stop) windows of at most ``window`` frames covering the video; consecutive
-    windows share at least ``overlap`` frames (default a quarter of the window, at least 1)."""
-    if window is None or window >= num_frames:
-        return [(0, num_frames)]
-    if window < 2:
-        raise UserError(f"window must be at least 2 frames, got {window}")
-    overlap = max(1, window // 4) if overlap is None else overlap
-    if not 1 <= overlap < window:
-        raise UserError(f"overlap must be between 1 and window - 1 = {window - 1}, got {overlap}")
-    starts = list(range(0, num_frames - window, window - overlap))
-    starts.append(num_frames - window)  # the last window ends with the video (it may overlap more)
-    return [(s, s + window) for s in starts]
-
-
-def _queries(uv: np.ndarray, t_src, t_tgt, t_cam) -> np.ndarray:
-    """Every grid position for every (t_src, t_tgt, t_cam) triple: (len(triples) * len(uv), 5), frame-major."""
-    t_src, t_tgt, t_cam = (np.asarray(x, dtype=np.float64) for x in (t_src, t_tgt, t_cam))
-    n = len(uv)
-    times = np.stack([t_src, t_tgt, t_cam], 1)
-    return np.concatenate([np.tile(uv, (len(times), 1)), np.repeat(times, n, axis=0)], 1)
-
-
-def _track_queries(uv: np.ndarray, t_src: np.ndarray, frames: np.ndarray, cams: np.ndarray) -> np.ndarray:
-    """For each source (uv (N, 2), t_src (N,)), one query per frame k: (N * K, 5), source-major."""
-    n, k = len(uv), len(frames)
-    q = np.empty((n, k, 5))
-    q[..., :2] = uv[:, None]
-    q[..., 2] = np.asarray(t_src)[:, None]
-    q[..., 3] = frames[None]
-    q[..., 4] = cams[None]
-    return q.reshape(-1, 5)
-
-
-@contextmanager
-def _keeping_windows(source, count: int):
-    """Let a source that caches encoded windows keep ``count`` of them for the duration."""
-    keeping = getattr(source, "keeping", None)
-    if keeping is None:
-        yield
-    else:
-        with keeping(count):
-            yield
-
-
 def _finite_weights(w: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(w) & (w > 0), w, 0.0)
-
-
-def _similarity_times_pose(sim: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """Sim(3) [sR | t] after a rigid pose: the camera's rotation turns by R, its centre maps by the Sim(3)."""
-    scale = np.cbrt(np.linalg.det(sim[:3, :3]))
-    rot = sim[:3, :3] / scale
-    out = np.eye(4)
-    out[:3, :3] = rot @ pose[:3, :3]
-    out[:3, 3] = sim[:3, :3] @ pose[:3, 3] + sim[:3, 3]
-    return out
 
 
 def _as_uint8_video(video) -> np.ndarray:

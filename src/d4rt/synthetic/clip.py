@@ -95,13 +95,14 @@ class Clip:
         return self._oracle
 
     def reconstruction(self, *, window: int | None = None, overlap: int | None = None, **options):
-        """The query recipes over this clip's exact oracle: a :class:`d4rt.reconstruction.Reconstruction`
-        whose depth, cameras, tracks and point clouds are ground truth (``window`` splits the clip into
-        overlapping windows, to test long-video stitching exactly)."""
-        from d4rt.reconstruction import AnswererSource, Reconstruction  # the layer above this one
+        """The query recipes over this clip's exact oracle: ``Reconstruction.from_clip(self, ...)``
+        (:class:`d4rt.reconstruction.Reconstruction`): depth, cameras, tracks and point clouds are ground
+        truth (``window`` splits the clip into overlapping windows, to test long-video stitching exactly)."""
+        # A shortcut kept because outside code relies on it (issue 4's fixed interface); the one upward
+        # reference of this layer, resolved at call time and allowed by name in docs/architecture.md.
+        from d4rt.reconstruction import Reconstruction
 
-        return Reconstruction(AnswererSource(self.oracle, max_window=window), self.rgb, window=window,
-                              overlap=overlap, **options)
+        return Reconstruction.from_clip(self, window=window, overlap=overlap, **options)
 
     # ---------------------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> Path:

@@ -29,11 +29,10 @@ from typing import Any
 import yaml
 
 from d4rt.config import D4RTConfig
-from d4rt.data import ClipQueryDataset, DatasetConfig
+from d4rt.data import ClipQueryDataset, DatasetConfig, TrackDatasetConfig, TrackQueryDataset, build_dataset
 from d4rt.errors import UserError
 from d4rt.evaluation.benchmarks import TASKS as EVALUATION_TASKS
 from d4rt.training.losses import LossConfig
-from d4rt.training.tracks import TrackDatasetConfig, TrackQueryDataset
 
 STRATEGIES = ("auto", "single", "ddp", "fsdp")
 PRECISIONS = ("auto", "fp32", "bf16")
@@ -61,7 +60,7 @@ class ModelSpec:
 @dataclass
 class DataSpec:
     """Training data: ``dataset`` (a :class:`d4rt.data.DatasetConfig`: synthetic clips rendered on the fly
-    or clip files), or ``tracks`` (a :class:`d4rt.training.tracks.TrackDatasetConfig`: your clips with
+    or clip files), or ``tracks`` (a :class:`d4rt.data.track_clips.TrackDatasetConfig`: your clips with
     per-point 3D tracks), which replaces ``dataset`` when given; ``batch_size`` clips per process per
     micro-step (the paper: 1 clip per chip); ``workers`` data-loading processes per training process."""
 
@@ -84,7 +83,7 @@ class DataSpec:
         return self.tracks.num_queries if self.tracks else self.dataset.sampler.num_queries
 
     def build_dataset(self) -> ClipQueryDataset | TrackQueryDataset:
-        return TrackQueryDataset(self.tracks) if self.tracks else ClipQueryDataset(self.dataset)
+        return build_dataset(self.dataset, self.tracks)
 
 
 @dataclass

@@ -23,7 +23,7 @@ from d4rt.training.stop import defer_stop_signals
 class EpochIndexedDataset(torch.utils.data.Dataset):
     """``dataset[(epoch, index)]``: the sample ``index`` of ``epoch`` (works in any worker process,
     whose copy of the dataset gets the epoch set per item). ``dataset`` has ``set_epoch`` and yields
-    sample dicts (:class:`d4rt.data.ClipQueryDataset`, :class:`d4rt.training.tracks.TrackQueryDataset`)."""
+    sample dicts (:class:`d4rt.data.ClipQueryDataset`, :class:`d4rt.data.track_clips.TrackQueryDataset`)."""
 
     def __init__(self, dataset: torch.utils.data.Dataset):
         self.dataset = dataset

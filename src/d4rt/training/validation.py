@@ -28,6 +28,7 @@ from d4rt.evaluation.predictions import ReconstructionPredictor
 from d4rt.evaluation.readers.synthetic import sequence_from_clip
 from d4rt.geometry.view import View
 from d4rt.model import D4RT
+from d4rt.reconstruction import Reconstruction
 from d4rt.synthetic import Clip, load_clip, render_clip
 from d4rt.training.config import ValidationConfig
 from d4rt.training.losses import LossConfig, d4rt_loss
@@ -74,7 +75,8 @@ class Validator:
         device = next(model.parameters()).device
         size = (model.config.image_size, model.config.image_size)
         benchmark = Benchmark("validation", "held-out synthetic clips", None, tuple(self.config.tasks))
-        predictor = ReconstructionPredictor("d4rt", lambda sequence: model.reconstruct(sequence.rgb, progress=False))
+        predictor = ReconstructionPredictor("d4rt", lambda sequence: Reconstruction.from_model(model, sequence.rgb,
+                                                                                                progress=False))
         losses: dict[str, list[float]] = {}
         rows = []
         for index, clip in enumerate(self.clips):

@@ -14,7 +14,8 @@ from d4rt.geometry.transforms import apply_transform
 from d4rt.geometry.view import View
 from d4rt.synthetic import render_clip
 from d4rt.training import TrainConfig, train
-from d4rt.training.tracks import TrackClip, TrackDatasetConfig, TrackQueryDataset, load_track_clip, track_training_sample
+from d4rt.data.track_clips import (TrackClip, TrackDatasetConfig, TrackQueryDataset, load_track_clip,
+                                   track_training_sample)
 from training_helpers import fast_config
 
 

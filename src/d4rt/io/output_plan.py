@@ -1,0 +1,199 @@
+"""What to decode for a set of output formats: only the recipes (depth, cameras, point cloud, tracks,
+COLMAP points, dense tracks) that the chosen formats need, each once, at the resolutions asked for;
+the result is a :class:`d4rt.io.outputs.ReconstructionOutputs` that every writer reads."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from d4rt.errors import UserError
+from d4rt.geometry.camera import cell_centres_uv, uv_to_pixel
+from d4rt.geometry.transforms import apply_transform
+from d4rt.geometry.view import View
+from d4rt.geometry.voxel import voxel_subsample
+from d4rt.io.colmap import multiview_points
+from d4rt.io.formats import CAMERA_CHOICES, DEFAULT_FPS, DEFAULT_MAX_POINTS, FORMAT_NEEDS, POINT_SOURCES, ZOOM_SPREAD
+from d4rt.io.outputs import ReconstructionOutputs
+from d4rt.progress import progress_bar
+from d4rt.reconstruction.point_clouds import point_cloud_from_depth
+
+
+def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, camera: str = "auto",
+                    square_pixels: bool = True, min_confidence: float | None = None,
+                    point_stride: int | None = None, track_grid: int = 16, track_frame: int = 0,
+                    dense_resolution=None, max_points: int = DEFAULT_MAX_POINTS, points_from: str = "depth",
+                    timestamps=None,
+                    fps: float | None = None, progress: bool = False) -> ReconstructionOutputs:
+    """Decode what ``formats`` need from a :class:`d4rt.reconstruction.Reconstruction`.
+
+    resolution: depth maps at None (the input's size, continuous queries), "encoder" or (H, W).
+    intrinsics: known (3, 3) or (T, 3, 3) intrinsics in pixels of the input frames (OpenCV centres);
+    they replace the estimate and are rescaled for the depth maps' resolution. camera: "single" (one
+    camera for the whole video, what splatting and MVS tools expect), "per-frame" (the paper's recipe,
+    for zooming shots) or "auto" (the default: single where the per-frame focal lengths agree, see
+    :func:`choose_camera_model`); square_pixels: fx = fy (the default); both apply to estimated
+    intrinsics only, and every export uses the same ones. min_confidence: points and depth pixels below
+    it are dropped (None: keep every positive confidence); if nothing is left, a UserError gives the
+    range of confidences found (the scale is the model's: see docs/outputs.md). points_from: "depth"
+    (the default: the depth maps unprojected through the cameras, no further query; the depth maps are
+    decoded for it if no format needs them) or "queries" (the paper's direct recipe: every pixel queried
+    again with t_cam = 0). point_stride: point cloud from every n-th pixel of the input (default: one
+    point per depth-map pixel, or for "queries" the input-to-output size ratio, so the cloud is about
+    as dense as the depth maps). track_grid: tracks start from a track_grid x track_grid grid of
+    pixels of frame ``track_frame`` (0: no tracks). dense_resolution: the dense-tracking grid, (H, W),
+    "encoder" or "original" (the input's size); None: the encoder's input size where the model has one
+    (the input's size for an oracle): every pixel of a full-size video is rarely what is wanted, and
+    costs T * H * W tracks. max_points: at most this many points in the COLMAP model: pixels of the
+    point cloud, one per voxel (the most confident), each tracked through the video in the world
+    and kept where seen in 2 or more frames (:func:`d4rt.io.colmap.multiview_points`).
+    timestamps: (T,) seconds (default: frame numbers);
+    fps: for the videos and the viewer (default: from the timestamps, else 10).
+    """
+    t, h, w = rec.video.shape[:3]
+    needs = set().union(*(FORMAT_NEEDS[f] for f in formats))
+    if min_confidence is not None and not np.isfinite(min_confidence):
+        raise UserError(f"the confidence threshold must be a finite number, got {min_confidence}")
+    if camera not in CAMERA_CHOICES:
+        raise UserError(f"camera must be one of {', '.join(CAMERA_CHOICES)}, got {camera!r}")
+    if track_grid < 0:
+        raise UserError(f"the track grid must be >= 0 points per side, got {track_grid}")
+    if not 0 <= track_frame < t:
+        raise UserError(f"the track frame must be in [0, {t - 1}], got {track_frame}")
+    if points_from not in POINT_SOURCES:
+        raise UserError(f"points_from must be one of {', '.join(POINT_SOURCES)}, got {points_from!r}")
+    if max_points < 1:
+        raise UserError(f"the maximum number of COLMAP points must be >= 1, got {max_points}")
+    if point_stride is not None and point_stride < 1:
+        raise UserError(f"the point stride must be >= 1, got {point_stride}")
+    stamps = np.arange(t, dtype=np.float64) if timestamps is None else np.asarray(timestamps, dtype=np.float64)
+    if stamps.shape != (t,):
+        raise UserError(f"timestamps must have one entry per frame ({t}), got shape {stamps.shape}")
+    out = ReconstructionOutputs(rec.video, stamps, float(fps or (DEFAULT_FPS if timestamps is None else _rate(stamps))),
+                                min_confidence)
+    out_h, out_w = rec.output_size(resolution)
+    if "dense" in needs:  # checked before any decoding
+        dense_size = _dense_size(rec, dense_resolution)
+    if "points" in needs and points_from == "depth":
+        needs.add("depth")
+    if "depth" in needs:
+        needs.add("cameras")  # the depth maps' intrinsics
+    stages = [s for s in ("cameras", "depth", "points", "tracks", "colmap-points", "dense") if s in needs]
+    bar = progress_bar(stages, desc="query", unit="stage", disable=not progress)
+    for stage in bar:
+        bar.set_postfix_str(stage)
+        if stage == "cameras":
+            if camera == "auto" and intrinsics is None:
+                camera = choose_camera_model(rec, square_pixels)
+            cams = rec.cameras(intrinsics=intrinsics, camera="single" if camera == "auto" else camera,
+                               square_pixels=square_pixels)
+            out.video_intrinsics, out.cam_to_world = cams.intrinsics, cams.cam_to_world
+        elif stage == "depth":
+            depth = rec.depth(resolution)
+            out.depth, out.confidence = depth.depth, depth.confidence
+            _check_something_left(out.confidence, min_confidence, "depth pixel")
+            resize = View((h, w), (0, 0, w, h), (out_h, out_w), tuple(range(t)))
+            out.intrinsics = resize.intrinsics(out.video_intrinsics)
+        elif stage == "points":
+            if points_from == "depth":  # no query: the depth maps and cameras already decoded
+                stride = max(1, round(point_stride * min(out_h / h, out_w / w))) if point_stride else 1
+                cloud = point_cloud_from_depth(out.depth, out.confidence, out.intrinsics, out.cam_to_world, rec.video,
+                                               stride)
+            else:
+                stride = point_stride or max(1, int(min(h / out_h, w / out_w)))
+                cloud = rec.point_cloud(stride=stride)
+            _check_something_left(cloud.confidence, min_confidence, "point")
+            if min_confidence is not None:
+                cloud = cloud.filtered(cloud.confidence >= min_confidence)
+            out.points, out.point_colors, out.point_confidence = cloud.points, cloud.colors, cloud.confidence
+            out.point_frames, out.point_pixels = cloud.frames, cloud.pixels
+        elif stage == "tracks":
+            xy = uv_to_pixel(cell_centres_uv(track_grid), h, w)
+            out.track_queries = np.concatenate([np.full((len(xy), 1), float(track_frame)), xy], 1)
+            if track_grid:
+                tracks = rec.tracks(out.track_queries, frame="world")
+                out.tracks, out.track_visibility = tracks.points, tracks.visibility
+                out.track_confidence, out.track_uv = tracks.confidence, tracks.uv
+            else:
+                out.tracks, out.track_uv = np.zeros((0, t, 3)), np.zeros((0, t, 2))
+                out.track_visibility, out.track_confidence = np.zeros((0, t)), np.zeros((0, t))
+        elif stage == "colmap-points":
+            out.colmap = _colmap_points(rec, out, max_points)
+        elif stage == "dense":
+            out.dense = _dense_arrays(rec.dense_tracks(dense_size), out.cam_to_world)
+    return out
+
+
+def choose_camera_model(rec, square_pixels: bool = True, spread: float = ZOOM_SPREAD) -> str:
+    """"single" when the per-frame focal lengths agree (90th / 10th percentile within ``spread``), else
+    "per-frame" (a zoom), with a one-line notice. Costs no queries: the camera grid is cached."""
+    per_frame = rec.cameras(camera="per-frame", square_pixels=square_pixels).intrinsics[:, 0, 0]
+    low, high = np.percentile(per_frame, [10, 90])
+    if low > 0 and high / low <= spread:
+        return "single"
+    print(f"d4rt: the per-frame focal lengths range from {low:.0f} to {high:.0f} px (10th-90th percentile), so each "
+          "frame keeps its own camera; --camera single forces one", file=sys.stderr)
+    return "per-frame"
+
+
+def _check_something_left(confidence: np.ndarray, min_confidence: float | None, what: str) -> None:
+    """An empty output is an error, not an empty file: say what range the confidences have."""
+    if min_confidence is None or not confidence.size:
+        return
+    finite = confidence[np.isfinite(confidence)]
+    if not (finite >= min_confidence).any():
+        if not finite.size:
+            found = "all non-finite"
+        elif finite.min() == finite.max():
+            found = f"all {finite.min():.3g}"
+        else:
+            found = f"between {finite.min():.3g} and {finite.max():.3g}"
+        raise UserError(f"no {what} has confidence >= {min_confidence:g} (this reconstruction's confidences are "
+                        f"{found}); lower --min-confidence")
+
+
+def _colmap_points(rec, out: ReconstructionOutputs, max_points: int) -> dict:
+    """Multi-view points for the COLMAP model: an evenly spread, confident subset of the point cloud,
+    each pixel tracked through the video in the world (camera 0)."""
+    if not len(out.points):
+        return multiview_points(np.zeros((0, rec.num_frames, 3)), np.zeros((0, rec.num_frames, 2)),
+                                np.zeros((0, rec.num_frames)), np.zeros(0, dtype=np.int64), out.video_intrinsics,
+                                out.cam_to_world, rec.height, rec.width) | {"colors": np.zeros((0, 3), np.uint8)}
+    pick = voxel_subsample(out.points, out.point_confidence, max_points)
+    sources = out.point_frames[pick]
+    starts = np.concatenate([sources[:, None].astype(np.float64), out.point_pixels[pick].astype(np.float64)], 1)
+    tracks = rec.tracks(starts, frame="world")
+    found = multiview_points(tracks.points, tracks.uv, tracks.visibility, sources, out.video_intrinsics,
+                             out.cam_to_world, rec.height, rec.width)
+    if len(found["index"]) < len(pick) / 2:
+        print(f"d4rt: {len(found['index']):,} of {len(pick):,} tracked points were seen consistently (reprojecting "
+              f"within {0.01 * max(rec.height, rec.width):.1f} px) in 2 or more frames: the COLMAP model keeps only "
+              "those (the whole cloud is in points.ply)", file=sys.stderr)
+    return found | {"colors": out.point_colors[pick][found["index"]]}
+
+
+def _dense_size(rec, dense_resolution) -> tuple[int, int]:
+    if dense_resolution is None:
+        return rec.output_size("encoder" if rec.source.encoder_size is not None else None)
+    if isinstance(dense_resolution, str) and dense_resolution not in ("encoder", "original"):
+        raise UserError(f"dense_resolution must be 'encoder', 'original' or (H, W), got {dense_resolution!r}")
+    return rec.output_size(None if dense_resolution == "original" else dense_resolution)
+
+
+def _dense_arrays(dense, cam_to_world: np.ndarray) -> dict:
+    """The contents of dense_tracks.npz (see docs/outputs.md): tracks in camera k at frame k and in the
+    world (camera 0), float32."""
+    cam = dense.tracks.points
+    world = apply_transform(cam_to_world[None], cam)
+    return {"sources": dense.sources.astype(np.int32), "points_camera": cam.astype(np.float32),
+            "points_world": world.astype(np.float32), "uv": dense.tracks.uv.astype(np.float32),
+            "visibility": dense.tracks.visibility.astype(np.float32),
+            "confidence": dense.tracks.confidence.astype(np.float32),
+            "resolution": np.array(dense.resolution), "num_queries": np.int64(dense.num_queries),
+            "naive_num_queries": np.int64(dense.naive_num_queries), "coverage": np.float64(dense.coverage)}
+
+
+def _rate(stamps: np.ndarray) -> float:
+    steps = np.diff(stamps)
+    return 1.0 / float(np.median(steps)) if len(steps) and np.median(steps) > 0 else DEFAULT_FPS

@@ -1,0 +1,109 @@
+"""Long videos as overlapping windows (paper App. B): planning the windows, aligning each window's world
+to the global one by Sim(3), and handing tracks from one window to the next.
+
+Each window has its own world (the camera of its first frame) and, for a model, its own scale; window w
+is mapped into the global world (the camera of frame 0) by a Sim(3) fitted with Umeyama on the most
+confident part of the points its overlap shares with window w - 1. Every frame is answered by the
+first window that contains it (its *owner*).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from contextlib import contextmanager
+
+import numpy as np
+import torch
+
+from d4rt.errors import UserError
+from d4rt.geometry.umeyama import Similarity, umeyama
+from d4rt.reconstruction.query_patterns import grid_queries
+
+Windows = list[tuple[int, int]]  # [start, stop) frame ranges, ordered, consecutive ones overlapping
+
+
+def plan_windows(num_frames: int, window: int | None, overlap: int | None = None) -> Windows:
+    """Overlapping [start, stop) windows of at most ``window`` frames covering the video; consecutive
+    windows share at least ``overlap`` frames (default a quarter of the window, at least 1)."""
+    if window is None or window >= num_frames:
+        return [(0, num_frames)]
+    if window < 2:
+        raise UserError(f"window must be at least 2 frames, got {window}")
+    overlap = max(1, window // 4) if overlap is None else overlap
+    if not 1 <= overlap < window:
+        raise UserError(f"overlap must be between 1 and window - 1 = {window - 1}, got {overlap}")
+    starts = list(range(0, num_frames - window, window - overlap))
+    starts.append(num_frames - window)  # the last window ends with the video (it may overlap more)
+    return [(s, s + window) for s in starts]
+
+
+def owners(windows: Windows, frames) -> np.ndarray:
+    """The first window containing each frame: (N,) int64. Windows are ordered and overlap, so it is
+    the first one that stops after the frame."""
+    stops = np.array([b for _, b in windows])
+    return np.searchsorted(stops, np.asarray(frames), side="right").astype(np.int64)
+
+
+def owned(windows: Windows, w: int) -> range:
+    """The frames window ``w`` owns: from where the previous window stops to where it stops."""
+    start, stop = windows[w]
+    return range(windows[w - 1][1] if w else start, stop)
+
+
+def align_windows(windows: Windows, ask: Callable[[int, np.ndarray], dict], uv: np.ndarray,
+                  align_fraction: float) -> list[Similarity]:
+    """Sim(3) from each window's world (camera of its first frame) to the global world (camera 0).
+
+    ask(w, queries (N, 5) with global frame indices) -> answers of window w (numpy ``points``,
+    ``confidence``); uv: (P, 2) grid queried at every shared frame, seen from each window's first
+    camera; the most confident ``align_fraction`` of the pairs enter the Umeyama fit.
+    """
+    sims = [Similarity(torch.eye(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64),
+                       torch.ones((), dtype=torch.float64))]
+    for w in range(1, len(windows)):
+        (a0, b0), (a1, _) = windows[w - 1], windows[w]
+        shared = np.arange(a1, b0)
+        prev = ask(w - 1, grid_queries(uv, shared, shared, np.full_like(shared, a0)))
+        this = ask(w, grid_queries(uv, shared, shared, np.full_like(shared, a1)))
+        conf = prev["confidence"] * this["confidence"]
+        ok = np.isfinite(conf) & (conf > 0) & np.isfinite(prev["points"]).all(1) & np.isfinite(this["points"]).all(1)
+        keep = np.nonzero(ok)[0]
+        if len(keep) < 3:
+            raise UserError(f"windows {w - 1} and {w} share too few confident points to be aligned")
+        # The most confident align_fraction of the shared points (ties broken by order).
+        order = keep[np.argsort(-conf[keep], kind="stable")]
+        keep = order[: max(3, int(np.ceil(align_fraction * len(order))))]
+        target = sims[w - 1].apply(torch.from_numpy(prev["points"][keep]))
+        sims.append(umeyama(torch.from_numpy(this["points"][keep]), target, with_scale=True))
+    return sims
+
+
+def hand_off(windows: Windows, answers: dict, win: int, nxt: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where tracks decoded in window ``win`` (answers ``uv`` (N, K, 2), ``visibility`` (N, K) over its
+    K frames) continue in window ``nxt``: for each, the frame shared by both where it is most visible
+    and its (u, v) there. Returns (ok (N,), uv (N, 2), global frame (N,)); ok is False where there is no
+    such window or the track is hidden (or outside the image) in every shared frame: it cannot be
+    carried."""
+    count = len(answers["uv"])
+    if not 0 <= nxt < len(windows):
+        return np.zeros(count, dtype=bool), np.zeros((count, 2)), np.zeros(count, dtype=np.int64)
+    (a, b), (na, nb) = windows[win], windows[nxt]
+    shared = np.arange(max(a, na), min(b, nb)) - a
+    vis = np.nan_to_num(answers["visibility"][:, shared], nan=0.0)  # NaN must not win argmax
+    best = np.argmax(vis, axis=1)
+    rows = np.arange(count)
+    k = shared[best]
+    uv = answers["uv"][rows, k]
+    ok = (vis[rows, best] > 0.5) & np.all((uv >= 0) & (uv <= 1), 1)
+    return ok, uv, k + a
+
+
+@contextmanager
+def keeping_windows(source, count: int):
+    """Let a source that caches encoded windows keep ``count`` of them for the duration."""
+    keeping = getattr(source, "keeping", None)
+    if keeping is None:
+        yield
+    else:
+        with keeping(count):
+            yield
