@@ -1,4 +1,4 @@
-"""Speed and memory of d4rt: the same as ``d4rt bench`` (the logic lives in ``d4rt.benchmark``).
+"""Speed and memory of d4rt: the same as ``d4rt bench`` (the logic lives in ``d4rt.speed``).
 
     PYTHONPATH=src python benchmarks/bench.py --preset tiny --frames 48 --json bench.json
     PYTHONPATH=src python benchmarks/bench.py --preset giant --device cuda --dtype bf16 --frames 48 --size 256

@@ -12,8 +12,8 @@ PACKAGE = Path(d4rt.__file__).parent
 
 # What each part of d4rt may import from the others (written once, here; docs/architecture.md draws it).
 # Lowest first: foundation, then the two engines (the model, the synthetic ground truth), the recipes
-# over any answerer, drawing, files, then the users of all of them: evaluation, training, the speed
-# benchmarks and the CLI.
+# over any answerer, drawing, files, then the users of all of them: evaluation, training, speed and
+# memory measurement (d4rt bench) and the CLI.
 FOUNDATION = {"errors", "config", "devices", "progress", "geometry"}
 ALLOWED = {
     "errors": set(),
@@ -29,9 +29,9 @@ ALLOWED = {
     "io": FOUNDATION | {"reconstruction", "viz"},
     "evaluation": FOUNDATION | {"model", "synthetic", "reconstruction", "io"},
     "training": FOUNDATION | {"model", "synthetic", "data", "reconstruction", "evaluation"},
-    "benchmark": FOUNDATION | {"model", "synthetic", "reconstruction", "evaluation"},
+    "speed": FOUNDATION | {"model", "synthetic", "reconstruction", "evaluation"},
     "cli": FOUNDATION | {"model", "synthetic", "data", "reconstruction", "viz", "io", "evaluation", "training",
-                         "benchmark"},
+                         "speed"},
     "__main__": {"cli"},
 }
 

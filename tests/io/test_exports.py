@@ -127,10 +127,10 @@ def test_confidence_threshold_filters_points_and_depth_pixels(clip, tmp_path):
     kept = output_plan.compute_outputs(rec, ["ply", "depth"], min_confidence=0.5, point_stride=4)
     assert len(kept.points) == 5 * 8 * 10 and kept.depth_valid().all()
     # A threshold that leaves nothing is an error naming the range found, not an empty file.
-    for formats, source, what in ((["ply"], "queries", "no point"), (["ply"], "depth", "no depth pixel"),
-                                  (["depth"], "depth", "no depth pixel")):
+    for names, source, what in ((["ply"], "queries", "no point"), (["ply"], "depth", "no depth pixel"),
+                                (["depth"], "depth", "no depth pixel")):
         with pytest.raises(UserError, match=f"{what} has confidence >= 1.5 .*confidences are all 1\\)"):
-            output_plan.compute_outputs(rec, formats, min_confidence=1.5, point_stride=4, points_from=source)
+            output_plan.compute_outputs(rec, names, min_confidence=1.5, point_stride=4, points_from=source)
     # Pixels below the threshold are 0 (no depth) in the PNGs.
     kept.confidence[1:] = 0.25
     writers.write_outputs(kept, tmp_path / "o", ["depth"])

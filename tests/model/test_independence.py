@@ -2,7 +2,7 @@
 
 import torch
 
-from d4rt.model.scene import OUTPUT_KEYS
+from d4rt.model.encoded_scene import OUTPUT_KEYS
 
 ATOL = 1e-5
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from d4rt.model.scene import OUTPUT_KEYS
+from d4rt.model.encoded_scene import OUTPUT_KEYS
 
 
 class CallCounter:
@@ -228,7 +228,7 @@ def test_original_frames_are_stored_contiguous(make_model, random_video, random_
 def test_cached_and_recomputed_keys_values_answer_the_same_at_benchmark_chunks(make_model, random_video,
                                                                              random_queries):
     """As ``d4rt bench`` compares them: chunks of 256, random and track queries, float32, to 1e-5."""
-    from d4rt.benchmark.decoder import random_sources, track_queries
+    from d4rt.speed.decoder import random_sources, track_queries
 
     model = make_model()
     scene = model.encode(random_video(8, 48, 48))

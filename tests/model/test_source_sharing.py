@@ -3,9 +3,9 @@
 import numpy as np
 import torch
 
-from d4rt.benchmark.decoder import random_sources, track_queries
+from d4rt.speed.decoder import random_sources, track_queries
 from d4rt.geometry.umeyama import umeyama
-from d4rt.model.scene import OUTPUT_KEYS
+from d4rt.model.encoded_scene import OUTPUT_KEYS
 from d4rt.reconstruction.cameras import relative_poses
 
 ATOL = 1e-5

@@ -4,7 +4,7 @@ with encode / query."""
 import pytest
 import torch
 
-from d4rt.model.scene import OUTPUT_KEYS
+from d4rt.model.encoded_scene import OUTPUT_KEYS
 
 
 def full_coverage_batch(config, batch=2, queries=64):

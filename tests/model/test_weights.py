@@ -9,7 +9,7 @@ from safetensors.torch import load_file, save_file
 from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
 from d4rt.model import D4RT
-from d4rt.model.scene import OUTPUT_KEYS
+from d4rt.model.encoded_scene import OUTPUT_KEYS
 from d4rt.model.weights import CONFIG_NAME, WEIGHTS_NAME
 
 

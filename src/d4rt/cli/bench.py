@@ -65,7 +65,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def options_from_args(args: argparse.Namespace):
-    from d4rt.benchmark import BenchOptions
+    from d4rt.speed import BenchOptions
 
     if args.size is not None and (args.height is not None or args.width is not None):
         raise UserError("give either --size or --height/--width, not both")
@@ -82,7 +82,7 @@ def options_from_args(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from d4rt.benchmark import format_table, run_benchmark, write_json
+    from d4rt.speed import format_table, run_benchmark, write_json
 
     options = options_from_args(args)
     if args.json and not Path(args.json).parent.is_dir():  # fail now, not after minutes of measuring

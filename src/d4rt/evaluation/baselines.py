@@ -5,7 +5,7 @@
   checks the recipes and the harness end to end; elsewhere it returns the ground-truth arrays.
 - ``constant-depth``: the same depth at every pixel of every frame (1.0; after per-sequence scale
   alignment it is the best single depth for the sequence). The floor any depth method must beat.
-- ``colmap``: COLMAP incremental SfM through pycolmap, camera poses only (``d4rt.evaluation.colmap``).
+- ``colmap``: COLMAP incremental SfM through pycolmap, camera poses only (``d4rt.evaluation.colmap_baseline``).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def make_baseline(name: str) -> Predictor:
     if name == "constant-depth":
         return ConstantDepthPredictor()
     if name == "colmap":
-        from d4rt.evaluation.colmap import ColmapPredictor
+        from d4rt.evaluation.colmap_baseline import ColmapPredictor
 
         return ColmapPredictor()
     raise UserError(f"unknown baseline {name!r}; known: {list(BASELINES)}")

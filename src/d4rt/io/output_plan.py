@@ -13,7 +13,7 @@ from d4rt.geometry.camera import cell_centres_uv, uv_to_pixel
 from d4rt.geometry.transforms import apply_transform
 from d4rt.geometry.view import View
 from d4rt.geometry.voxel import voxel_subsample
-from d4rt.io.colmap import multiview_points
+from d4rt.io.colmap_export import multiview_points
 from d4rt.io.formats import CAMERA_CHOICES, DEFAULT_FPS, DEFAULT_MAX_POINTS, FORMAT_NEEDS, POINT_SOURCES, ZOOM_SPREAD
 from d4rt.io.outputs import ReconstructionOutputs
 from d4rt.progress import progress_bar
@@ -47,7 +47,7 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     (the input's size for an oracle): every pixel of a full-size video is rarely what is wanted, and
     costs T * H * W tracks. max_points: at most this many points in the COLMAP model: pixels of the
     point cloud, one per voxel (the most confident), each tracked through the video in the world
-    and kept where seen in 2 or more frames (:func:`d4rt.io.colmap.multiview_points`).
+    and kept where seen in 2 or more frames (:func:`d4rt.io.colmap_export.multiview_points`).
     timestamps: (T,) seconds (default: frame numbers);
     fps: for the videos and the viewer (default: from the timestamps, else 10).
     """

@@ -46,7 +46,7 @@ class ReconstructionOutputs:
     track_confidence: np.ndarray | None = None
     track_uv: np.ndarray | None = None
     dense: dict | None = None  # the arrays of dense_tracks.npz (written by that format alone)
-    colmap: dict | None = None  # the multi-view points of the COLMAP model (io.colmap.multiview_points, colors)
+    colmap: dict | None = None  # the multi-view points of the COLMAP model (io.colmap_export.multiview_points, colors)
 
     @property
     def num_frames(self) -> int:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from d4rt.io.colmap import write_colmap
+from d4rt.io.colmap_export import write_colmap
 from d4rt.io.depth_png import write_depth_pngs
 from d4rt.io.formats import check_output_dir, parse_formats
 from d4rt.io.glb import write_glb

@@ -13,6 +13,6 @@
 
 from d4rt.config import D4RTConfig
 from d4rt.model.d4rt import D4RT
-from d4rt.model.scene import EncodedScene
+from d4rt.model.encoded_scene import EncodedScene
 
 __all__ = ["D4RT", "D4RTConfig", "EncodedScene"]

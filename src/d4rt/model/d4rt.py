@@ -30,7 +30,7 @@ from d4rt.model.inputs import (
     pad_to_tubelets,
 )
 from d4rt.model.query_embedding import QueryEmbedding
-from d4rt.model.scene import EncodedScene
+from d4rt.model.encoded_scene import EncodedScene
 from d4rt.model.weights import bundled_model_dir, check_state_dict, read_checkpoint, save_checkpoint
 
 

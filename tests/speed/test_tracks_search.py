@@ -2,7 +2,7 @@
 
 import pytest
 
-from d4rt.benchmark.tracks import max_tracks_at_fps
+from d4rt.speed.tracks import max_tracks_at_fps
 
 
 class FakeRun:

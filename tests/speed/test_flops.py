@@ -5,7 +5,7 @@ import torch
 from torch.nn.attention import SDPBackend, sdpa_kernel
 from torch.utils.flop_counter import FlopCounterMode
 
-from d4rt.benchmark.flops import decoder_flops_per_query, encoder_flops, peak_tflops, scene_kv_flops
+from d4rt.speed.flops import decoder_flops_per_query, encoder_flops, peak_tflops, scene_kv_flops
 from d4rt.config import D4RTConfig
 from d4rt.model import D4RT
 

@@ -18,9 +18,9 @@ import math
 import torch
 from d4rt.progress import progress_bar
 
-from d4rt.benchmark.decoder import random_sources, track_queries
-from d4rt.benchmark.options import BenchOptions
-from d4rt.benchmark.timing import time_once
+from d4rt.speed.decoder import random_sources, track_queries
+from d4rt.speed.options import BenchOptions
+from d4rt.speed.timing import time_once
 
 
 class TrackRun:

@@ -12,8 +12,8 @@
     report    the result as a table and as JSON
 """
 
-from d4rt.benchmark.options import BenchOptions
-from d4rt.benchmark.report import format_table, write_json
-from d4rt.benchmark.runner import run_benchmark
+from d4rt.speed.options import BenchOptions
+from d4rt.speed.report import format_table, write_json
+from d4rt.speed.runner import run_benchmark
 
 __all__ = ["BenchOptions", "format_table", "run_benchmark", "write_json"]

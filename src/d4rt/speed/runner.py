@@ -7,13 +7,13 @@ import time
 
 import torch
 
-from d4rt.benchmark.decoder import bench_decoder
-from d4rt.benchmark.dense import bench_dense
-from d4rt.benchmark.encoder import bench_encoder
-from d4rt.benchmark.options import BenchOptions, make_model, make_video
-from d4rt.benchmark.pose import bench_colmap, bench_pose
-from d4rt.benchmark.timing import measure_peak, peak_rss_bytes, reset_peak_memory
-from d4rt.benchmark.tracks import bench_tracks_at_fps
+from d4rt.speed.decoder import bench_decoder
+from d4rt.speed.dense import bench_dense
+from d4rt.speed.encoder import bench_encoder
+from d4rt.speed.options import BenchOptions, make_model, make_video
+from d4rt.speed.pose import bench_colmap, bench_pose
+from d4rt.speed.timing import measure_peak, peak_rss_bytes, reset_peak_memory
+from d4rt.speed.tracks import bench_tracks_at_fps
 
 PARTS = ("encoder", "decoder", "pose", "tracks", "dense")
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import torch
 
-from d4rt.benchmark.flops import encoder_flops, peak_tflops, scene_kv_flops
-from d4rt.benchmark.options import BenchOptions
-from d4rt.benchmark.timing import best_time
+from d4rt.speed.flops import encoder_flops, peak_tflops, scene_kv_flops
+from d4rt.speed.options import BenchOptions
+from d4rt.speed.timing import best_time
 from d4rt.model.inputs import encoder_frames
 
 

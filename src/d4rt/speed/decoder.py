@@ -6,10 +6,10 @@ from __future__ import annotations
 import torch
 from d4rt.progress import progress_bar
 
-from d4rt.benchmark.flops import decoder_flops_per_query
-from d4rt.benchmark.options import BenchOptions
-from d4rt.benchmark.timing import time_once
-from d4rt.model.scene import auto_chunk_size
+from d4rt.speed.flops import decoder_flops_per_query
+from d4rt.speed.options import BenchOptions
+from d4rt.speed.timing import time_once
+from d4rt.model.encoded_scene import auto_chunk_size
 
 
 def random_queries(n: int, frames: int, generator: torch.Generator) -> torch.Tensor:

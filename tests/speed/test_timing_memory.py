@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from d4rt.benchmark.timing import measure_peak, peak_rss_bytes, reset_peak_memory
+from d4rt.speed.timing import measure_peak, peak_rss_bytes, reset_peak_memory
 
 CPU = torch.device("cpu")
 

@@ -3,7 +3,7 @@
 The recipe is the one users call, ``model.reconstruct(video).cameras()`` (paper Sec. 2.1): encode the
 clip, query a grid of every frame in its own camera and in the reference camera, fit intrinsics by
 the pinhole median and poses by Umeyama. FPS = frames / wall time, encoder included. Optionally the
-same clip goes through COLMAP's incremental SfM (``d4rt.evaluation.colmap``) for comparison.
+same clip goes through COLMAP's incremental SfM (``d4rt.evaluation.colmap_baseline``) for comparison.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import time
 
 import torch
 
-from d4rt.benchmark.options import BenchOptions
-from d4rt.benchmark.timing import best_time
+from d4rt.speed.options import BenchOptions
+from d4rt.speed.timing import best_time
 from d4rt.reconstruction.reconstruction import DEFAULT_GRID, Reconstruction
 
 
@@ -36,7 +36,7 @@ def bench_pose(model, video: torch.Tensor, options: BenchOptions) -> dict:
 def bench_colmap(video: torch.Tensor, pose_s: float) -> dict:
     """COLMAP (pycolmap: SIFT, exhaustive matching, incremental mapping, on the CPU) on the same clip,
     timed once from frames in memory to poses; speed-up = COLMAP time / D4RT pose time."""
-    from d4rt.evaluation.colmap import ColmapPredictor  # raises a UserError naming the extra if missing
+    from d4rt.evaluation.colmap_baseline import ColmapPredictor  # raises a UserError naming the extra if missing
 
     predictor = ColmapPredictor()
     start = time.perf_counter()

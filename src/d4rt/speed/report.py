@@ -29,7 +29,7 @@ def _mib(n: int) -> str:
 
 
 def format_table(result: dict) -> str:
-    """Every figure of a :func:`d4rt.benchmark.runner.run_benchmark` result, one per line, by part."""
+    """Every figure of a :func:`d4rt.speed.runner.run_benchmark` result, one per line, by part."""
     e, d, p, dn = result["encoder"], result["decoder"], result["pose"], result["dense"]
     lines = [
         f"d4rt bench  preset {result['preset']}  {result['frames']} frames {result['height']}x{result['width']}"

@@ -18,8 +18,8 @@ import numpy as np
 import torch
 from d4rt.progress import progress_bar
 
-from d4rt.benchmark.options import BenchOptions
-from d4rt.benchmark.timing import synchronize
+from d4rt.speed.options import BenchOptions
+from d4rt.speed.timing import synchronize
 from d4rt.evaluation.synthetic_benchmark import FRAMES, NAME, clip_specs
 from d4rt.reconstruction import Reconstruction
 from d4rt.synthetic import render_clip
