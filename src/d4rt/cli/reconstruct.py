@@ -1,4 +1,5 @@
-"""``d4rt reconstruct INPUT -o OUT_DIR``: a video (file, image folder or array) to every 4D output.
+"""``d4rt reconstruct INPUT -o OUT_DIR``: a video (file, image folder or array) to every 4D output; many
+videos (d4rt.cli.collection) to one output folder each, sharded across the processes of torchrun.
 
 A thin layer over the Python API: ``load_frames`` -> ``Reconstruction.from_model`` ->
 ``d4rt.io.exports.export_reconstruction``.
@@ -23,13 +24,19 @@ def register(subparsers) -> None:
         "reconstruct", help=COMMANDS["reconstruct"],
         description="Reconstruct a video in 4D with a D4RT model and write the outputs (units and conventions: "
                     "docs/outputs.md).")
-    p.add_argument("input", metavar="INPUT",
+    p.add_argument("input", metavar="INPUT", nargs="+",
                    help="a video file (.mp4 .mov .avi .webm .mkv), a folder of images, or an .npy/.npz array "
-                        "(T, H, W, 3)")
+                        "(T, H, W, 3); or many videos: several paths, a folder of video files, a quoted glob "
+                        "pattern, or a .txt file listing paths (one output folder each, OUT_DIR/summary.jsonl; "
+                        "sharded across processes under torchrun; a re-run skips the finished ones)")
     p.add_argument("-o", "--out", required=True, metavar="OUT_DIR",
-                   help="output directory (new or empty; see --overwrite)")
+                   help="output directory (new or empty; see --overwrite); for many videos, the folder that "
+                        "holds one output folder per video")
     p.add_argument("--overwrite", action="store_true",
-                   help="replace a non-empty OUT_DIR as a whole (atomically, once every new file is written)")
+                   help="replace a non-empty OUT_DIR as a whole (atomically, once every new file is written); "
+                        "for many videos, reconstruct every one again")
+    p.add_argument("--retry-failed", action="store_true",
+                   help="for many videos: also retry those an earlier run recorded as failed in summary.jsonl")
     frames = p.add_argument_group("frames")
     frames.add_argument("--start", type=int, default=0, help="first frame, 0-based (default: 0)")
     frames.add_argument("--end", type=int, default=None, help="stop before this frame (default: the last)")
@@ -174,32 +181,84 @@ def describe_work(rec, formats, resolution, point_stride: int | None, track_grid
 
 
 def run(args) -> int:
+    from d4rt.cli.collection import is_collection
     from d4rt.io.formats import check_output_dir, parse_formats
-    from d4rt.io.frames import FrameRange, check_input, load_frames
+    from d4rt.io.frames import FrameRange, check_input
 
     # Every option is checked before any work (and before torch loads), so a bad one costs nothing and
     # writes nothing.
-    check_input(args.input)
+    many = is_collection(args.input)
+    if not many:
+        check_input(args.input[0])
     intrinsics = parse_intrinsics(args.intrinsics) if args.intrinsics else None
     resolution = parse_resolution(args.resolution)
     dense_resolution = (args.dense_resolution if args.dense_resolution in (None, "original")
                         else parse_resolution(args.dense_resolution, "--dense-resolution"))
     formats = parse_formats(args.outputs)
-    out_dir = check_output_dir(args.out, args.overwrite)
     selection = FrameRange(args.start, args.end, args.stride, args.max_frames)
-
-    import torch
+    save_options = dict(resolution=resolution, intrinsics=intrinsics, camera=args.camera,
+                        square_pixels=not args.non_square_pixels, min_confidence=args.min_confidence,
+                        point_stride=args.point_stride, points_from=args.points_from, track_grid=args.tracks,
+                        track_frame=args.track_frame, dense_resolution=dense_resolution, max_points=args.max_points,
+                        progress=True)
+    if many:
+        return run_many(args, selection, formats, save_options)
+    out_dir = check_output_dir(args.out, args.overwrite)
 
     from d4rt.devices import native_bf16, resolve_device
-    from d4rt.io.shots import detect_cuts, shot_ranges
+    from d4rt.io.frames import load_frames
 
     device = resolve_device(args.device, "--device")
     bf16 = args.dtype == "bf16" or (args.dtype == "auto" and native_bf16(device))
-
-    frames = load_frames(args.input, selection, progress=True)
+    frames = load_frames(args.input[0], selection, progress=True)
     model = load_model(args.checkpoint, device)
+    reconstruct_frames(model, frames, out_dir, args, formats, save_options, bf16, overwrite=args.overwrite)
+    return 0
+
+
+def run_many(args, selection, formats, save_options) -> int:
+    """Many inputs (d4rt.cli.collection): this process's share of them, the model loaded once; under
+    torchrun every rank runs this with its own share."""
+    from pathlib import Path
+
+    from d4rt.cli.collection import expand_inputs, run_collection
+    from d4rt.devices import native_bf16
+    from d4rt.io.frames import load_frames
+    from d4rt.training.distributed import DistributedContext
+
+    inputs = expand_inputs(args.input)
+    out_dir = Path(args.out)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserError(f"{out_dir} exists and is not a folder")
+    context = DistributedContext.from_environment(args.device)
+    try:
+        bf16 = args.dtype == "bf16" or (args.dtype == "auto" and native_bf16(context.device))
+        model = load_model(args.checkpoint, context.device)
+
+        def reconstruct_one(source: Path, target: Path) -> int:
+            frames = load_frames(source, selection, progress=True)
+            reconstruct_frames(model, frames, target, args, formats, save_options, bf16, overwrite=args.overwrite)
+            return len(frames.rgb)
+
+        if context.is_main:
+            print(f"d4rt reconstruct: {len(inputs)} videos into {out_dir}/ (one folder each) on "
+                  f"{context.world_size} process{'es' if context.distributed else ''}")
+        rows = run_collection(inputs, out_dir, reconstruct_one, rank=context.rank, world_size=context.world_size,
+                              barrier=context.barrier, overwrite=args.overwrite, retry_failed=args.retry_failed)
+    finally:
+        context.close()
+    return 1 if context.is_main and any(row.status == "failed" for row in rows) else 0
+
+
+def reconstruct_frames(model, frames, out_dir, args, formats, save_options, bf16: bool, overwrite: bool) -> None:
+    """One video's frames (shot by shot when it has cuts) into ``out_dir``."""
+    import torch
+
+    from d4rt.io.shots import detect_cuts, shot_ranges
+
     t, h, w = frames.rgb.shape[:3]
-    print(f"d4rt reconstruct: {t} frames of {w}x{h} from {args.input} (source frames {frames.indices[0]}.."
+    device = next(model.parameters()).device
+    print(f"d4rt reconstruct: {t} frames of {w}x{h} from {frames.source} (source frames {frames.indices[0]}.."
           f"{frames.indices[-1]}, stride {args.stride}) with model '{model.config.name}' on {device}"
           f"{' under bf16 autocast' if bf16 else ''}")
     shots = [(0, t)] if args.no_cut_detection else shot_ranges(t, detect_cuts(frames.rgb, args.cut_threshold))
@@ -210,25 +269,20 @@ def run(args) -> int:
     if args.track_frame >= min(b - a for a, b in usable):
         raise UserError(f"--track-frame {args.track_frame} is past the end of a shot (shots: "
                         f"{', '.join(f'{a}..{b - 1}' for a, b in shots)}); it counts from each shot's first frame")
-    save_options = dict(resolution=resolution, intrinsics=intrinsics, camera=args.camera,
-                        square_pixels=not args.non_square_pixels, min_confidence=args.min_confidence,
-                        point_stride=args.point_stride, points_from=args.points_from, track_grid=args.tracks,
-                        track_frame=args.track_frame,
-                        dense_resolution=dense_resolution, max_points=args.max_points, fps=frames.fps, progress=True)
+    options = dict(save_options, fps=frames.fps)
     stamps = frames.timestamps if frames.has_clock else None
     autocast = torch.autocast(device.type, dtype=torch.bfloat16) if bf16 else nullcontext()
     with autocast:
         if len(shots) == 1:
-            paths = reconstruct_clip(model, frames.rgb, stamps, out_dir, args, formats, save_options)
+            paths = reconstruct_clip(model, frames.rgb, stamps, out_dir, args, formats, options, overwrite)
         else:
             print(f"shot cuts before frames {', '.join(str(a) for a, _ in shots[1:])}: {len(shots)} shots, each "
                   "reconstructed on its own into OUT_DIR/shot_NNN/ (--no-cut-detection stitches through them)")
-            paths = reconstruct_shots(model, frames, shots, out_dir, args, formats, save_options)
+            paths = reconstruct_shots(model, frames, shots, out_dir, args, formats, options)
     print(f"wrote {out_dir}/: {', '.join(p.name + ('/' if p.is_dir() else '') for p in paths)}")
-    return 0
 
 
-def reconstruct_clip(model, rgb, timestamps, out_dir, args, formats, save_options, overwrite=None) -> list:
+def reconstruct_clip(model, rgb, timestamps, out_dir, args, formats, save_options, overwrite: bool) -> list:
     """One shot: encode (with a progress bar on the encoder), decode and write its outputs."""
     from d4rt.io.exports import export_reconstruction
     from d4rt.reconstruction import Reconstruction
@@ -238,8 +292,7 @@ def reconstruct_clip(model, rgb, timestamps, out_dir, args, formats, save_option
                                         progress=True)
         print(describe_work(rec, formats, save_options["resolution"], args.point_stride, args.tracks, args.max_points,
                             args.points_from))
-        return export_reconstruction(rec, out_dir, formats, overwrite=args.overwrite if overwrite is None else overwrite,
-                                     timestamps=timestamps, **save_options)
+        return export_reconstruction(rec, out_dir, formats, overwrite=overwrite, timestamps=timestamps, **save_options)
 
 
 def reconstruct_shots(model, frames, shots, out_dir, args, formats, save_options) -> list:
