@@ -21,6 +21,7 @@ from d4rt.progress import set_progress
 # One module per subcommand (``d4rt.cli.<name>``), in the order `d4rt --help` lists them, with its
 # one-line help.
 COMMANDS = {"reconstruct": 'reconstruct a video in 4D and write depth, cameras, points, tracks and viewers',
+            "stream": 'reconstruct a live video (camera, URL, pipe) window by window as frames arrive',
             "demo": 'every output on the bundled samples (no arguments needed)',
             "eval": 'evaluate a checkpoint and baselines on a benchmark',
             "generate": 'render synthetic clips with exact ground truth',

@@ -64,3 +64,37 @@ def read_video(path: str | Path, selection, progress: bool = False
     except av.error.FFmpegError as err:
         raise UserError(f"cannot decode video {path}: {err.strerror or err}") from err
     return frames, times, fps
+
+
+def iter_video(source: str, format: str | None = None):
+    """Decode frames one at a time as they arrive from anything FFmpeg opens: a file, a URL (rtsp://,
+    http://), or a camera device (``format`` names its driver, e.g. ``v4l2`` for /dev/video0,
+    ``avfoundation`` on macOS). Yields (frame (H, W, 3) uint8 RGB, time in seconds or None); nothing is
+    kept. A source FFmpeg cannot open or decode raises a UserError naming it."""
+    try:
+        with av.open(source, format=format) as container:
+            if not container.streams.video:
+                raise UserError(f"{source} has no video stream")
+            stream = container.streams.video[0]
+            for frame in container.decode(stream):
+                yield frame.to_ndarray(format="rgb24"), (float(frame.time) if frame.time is not None else None)
+    except av.error.FFmpegError as err:
+        raise UserError(f"cannot read video {source}: {err.strerror or err}") from err
+
+
+def iter_raw_frames(stream, height: int, width: int):
+    """Raw RGB frames (rgb24: height * width * 3 bytes each, rows top to bottom) from a binary stream such
+    as stdin, as they arrive: yields (H, W, 3) uint8 until the stream ends. A trailing partial frame is a
+    UserError (the size given does not match what was sent)."""
+    size = height * width * 3
+    while True:
+        data = stream.read(size)
+        if not data:
+            return
+        while len(data) < size:  # a pipe may hand a frame over in pieces
+            more = stream.read(size - len(data))
+            if not more:
+                raise UserError(f"the input ended inside a frame ({len(data)} of {size} bytes): are the frames "
+                                f"{width}x{height} rgb24?")
+            data += more
+        yield np.frombuffer(data, dtype=np.uint8).reshape(height, width, 3)

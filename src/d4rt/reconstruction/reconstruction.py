@@ -19,15 +19,16 @@ import torch
 
 from d4rt.errors import UserError
 from d4rt.geometry.camera import cell_centres_uv, pixel_grid, pixel_to_uv
-from d4rt.geometry.transforms import invert_rigid, similarity_times_pose
+from d4rt.geometry.transforms import invert_rigid
 from d4rt.geometry.umeyama import Similarity
 from d4rt.progress import progress_bar
-from d4rt.reconstruction.cameras import intrinsics_from_points, relative_poses
+from d4rt.reconstruction.cameras import intrinsics_from_points
 from d4rt.reconstruction.dense import occupancy_tracking
 from d4rt.reconstruction.results import Cameras, DenseTracks, Depth, PointCloud, Tracks
 from d4rt.reconstruction.query_patterns import grid_queries, track_queries
 from d4rt.reconstruction.sources import AnswererSource, ModelSource, as_source
-from d4rt.reconstruction.windows import align_windows, hand_off, keeping_windows, owned, owners, plan_windows
+from d4rt.reconstruction.windows import (align_windows, hand_off, keeping_windows, owned, owners, plan_windows,
+                                         window_camera_grid, window_depth)
 
 KEYS = ("points", "uv", "visibility", "confidence")
 
@@ -93,19 +94,9 @@ class Reconstruction:
         if len(q) and (q[:, 2:].min() < start or q[:, 2:].max() >= stop):
             raise AssertionError("query frames outside their window")  # a bug here, not bad input
         q[:, 2:] -= start
-        answerer = self.source.window(start, stop)
         self.queries_decoded += len(q)
         show = self.progress if self.progress is not None else len(q) > 8 * self.chunk_size
-        answers: dict[str, np.ndarray] = {}  # filled chunk by chunk (no per-chunk copies kept to concatenate)
-        for i in progress_bar(range(0, max(len(q), 1), self.chunk_size), desc="decoding queries", unit="chunk",
-                              disable=not show, leave=False):
-            out = answerer.query(q[i:i + self.chunk_size])
-            for k in KEYS:
-                part = out[k].detach().cpu().double().numpy()
-                if k not in answers:
-                    answers[k] = np.empty((len(q), *part.shape[1:]))
-                answers[k][i:i + len(part)] = part
-        return answers
+        return ask_in_chunks(self.source.window(start, stop), q, self.chunk_size, show)
 
     # ------------------------------------------------------------------------------------------------
     # Window alignment (App. B; d4rt.reconstruction.windows)
@@ -141,10 +132,8 @@ class Reconstruction:
         conf = np.zeros_like(depth)
         for win in range(len(self.windows)):
             frames = np.array(owned(self.windows, win))
-            out = self._ask(win, grid_queries(uv, frames, frames, frames))
-            scale = self._window_scale(win)
-            depth[frames] = (out["points"][:, 2] * scale).reshape(-1, h, w)
-            conf[frames] = out["confidence"].reshape(-1, h, w)
+            depth[frames], conf[frames] = window_depth(lambda q: self._ask(win, q), frames, uv, self._window_scale(win),
+                                                       h, w)
         return Depth(depth, conf)
 
     @cached_property
@@ -152,29 +141,14 @@ class Reconstruction:
         """Per frame i, the grid points seen in camera i (t_src = t_tgt = t_cam = i) and the rigid fit
         of camera i to the global world; the same answers serve intrinsics and poses."""
         uv = cell_centres_uv(self.grid)
-        n = len(uv)
         per_frame: list[dict] = [{} for _ in range(self.num_frames)]
         c2w = np.zeros((self.num_frames, 4, 4))
         for win in range(len(self.windows)):
             frames = np.array(owned(self.windows, win))
-            first = self.windows[win][0]
-            # One call, each point's two queries side by side: they differ only in t_cam, so the model
-            # embeds their shared (u, v, t_src) once (EncodedScene.query, share_sources).
-            both = np.stack([grid_queries(uv, frames, frames, frames),
-                             grid_queries(uv, frames, frames, np.full_like(frames, first))], 1).reshape(-1, 5)
-            answers = self._ask(win, both)
-            here = {k: v[0::2] for k, v in answers.items()}
-            there = {k: v[1::2] for k, v in answers.items()}
-            sim = self.window_to_world[win].matrix().double().numpy()
+            points, confidence, c2w[frames] = window_camera_grid(lambda q: self._ask(win, q), self.windows[win][0],
+                                                                 frames, uv, self.window_to_world[win])
             for j, f in enumerate(frames):
-                sl = slice(j * n, (j + 1) * n)
-                per_frame[f] = {"points": here["points"][sl], "confidence": here["confidence"][sl]}
-            # Every frame's rigid fit at once (one batched SVD, no loop over frames).
-            weights = _finite_weights(here["confidence"] * there["confidence"]).reshape(len(frames), n)
-            poses = relative_poses(here["points"].reshape(len(frames), n, 3), there["points"].reshape(len(frames), n, 3),
-                                   weights)
-            for j, f in enumerate(frames):
-                c2w[f] = similarity_times_pose(sim, poses[j])
+                per_frame[f] = {"points": points[j], "confidence": confidence[j]}
         return per_frame, c2w
 
     def cameras(self, intrinsics=None, method: str = "median", reference_frame: int = 0, camera: str = "per-frame",
@@ -404,9 +378,7 @@ class Reconstruction:
         if resolution == "encoder":
             if self.source.encoder_size is None:
                 raise UserError("this answerer has no encoder resolution; pass (height, width) instead")
-            pixels = self.source.encoder_size[0] * self.source.encoder_size[1]
-            aspect = self.width / self.height
-            return max(1, round(np.sqrt(pixels / aspect))), max(1, round(np.sqrt(pixels * aspect)))
+            return encoder_resolution(self.height, self.width, self.source.encoder_size)
         if (not isinstance(resolution, (tuple, list)) or len(resolution) != 2
                 or not all(isinstance(v, (int, np.integer)) and v > 0 for v in resolution)):
             raise UserError(f"resolution must be None, 'encoder' or (height, width) positive ints, got {resolution!r}")
@@ -431,8 +403,27 @@ class Reconstruction:
         return p
 
 
-def _finite_weights(w: np.ndarray) -> np.ndarray:
-    return np.where(np.isfinite(w) & (w > 0), w, 0.0)
+def encoder_resolution(height: int, width: int, encoder_size: tuple[int, int]) -> tuple[int, int]:
+    """(h, w) with about as many pixels as the encoder input ``encoder_size`` (H, W) and the aspect ratio of
+    a height x width video."""
+    pixels = encoder_size[0] * encoder_size[1]
+    aspect = width / height
+    return max(1, round(np.sqrt(pixels / aspect))), max(1, round(np.sqrt(pixels * aspect)))
+
+
+def ask_in_chunks(answerer, queries: np.ndarray, chunk_size: int, progress: bool = False) -> dict:
+    """Answer (N, 5) queries (the answerer's own frame indices) ``chunk_size`` at a time (bounded memory):
+    the KEYS as numpy float64 arrays (N, ...)."""
+    answers: dict[str, np.ndarray] = {}  # filled chunk by chunk (no per-chunk copies kept to concatenate)
+    for i in progress_bar(range(0, max(len(queries), 1), chunk_size), desc="decoding queries", unit="chunk",
+                          disable=not progress, leave=False):
+        out = answerer.query(queries[i:i + chunk_size])
+        for k in KEYS:
+            part = out[k].detach().cpu().double().numpy()
+            if k not in answers:
+                answers[k] = np.empty((len(queries), *part.shape[1:]))
+            answers[k][i:i + len(part)] = part
+    return answers
 
 
 def _as_uint8_video(video) -> np.ndarray:

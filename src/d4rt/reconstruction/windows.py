@@ -1,5 +1,7 @@
 """Long videos as overlapping windows (paper App. B): planning the windows, aligning each window's world
-to the global one by Sim(3), and handing tracks from one window to the next.
+to the global one by Sim(3), the camera and depth recipes of one window, and handing tracks from one window
+to the next. Offline (:class:`d4rt.reconstruction.Reconstruction`) and streaming
+(:mod:`d4rt.reconstruction.streaming`) reconstruction share these functions.
 
 Each window has its own world (the camera of its first frame) and, for a model, its own scale; window w
 is mapped into the global world (the camera of frame 0) by a Sim(3) fitted with Umeyama on the most
@@ -16,7 +18,9 @@ import numpy as np
 import torch
 
 from d4rt.errors import UserError
+from d4rt.geometry.transforms import similarity_times_pose
 from d4rt.geometry.umeyama import Similarity, umeyama
+from d4rt.reconstruction.cameras import relative_poses
 from d4rt.reconstruction.query_patterns import grid_queries
 
 Windows = list[tuple[int, int]]  # [start, stop) frame ranges, ordered, consecutive ones overlapping
@@ -58,24 +62,77 @@ def align_windows(windows: Windows, ask: Callable[[int, np.ndarray], dict], uv: 
     ``confidence``); uv: (P, 2) grid queried at every shared frame, seen from each window's first
     camera; the most confident ``align_fraction`` of the pairs enter the Umeyama fit.
     """
-    sims = [Similarity(torch.eye(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64),
-                       torch.ones((), dtype=torch.float64))]
+    sims = [identity_similarity()]
     for w in range(1, len(windows)):
-        (a0, b0), (a1, _) = windows[w - 1], windows[w]
-        shared = np.arange(a1, b0)
-        prev = ask(w - 1, grid_queries(uv, shared, shared, np.full_like(shared, a0)))
-        this = ask(w, grid_queries(uv, shared, shared, np.full_like(shared, a1)))
-        conf = prev["confidence"] * this["confidence"]
-        ok = np.isfinite(conf) & (conf > 0) & np.isfinite(prev["points"]).all(1) & np.isfinite(this["points"]).all(1)
-        keep = np.nonzero(ok)[0]
-        if len(keep) < 3:
-            raise UserError(f"windows {w - 1} and {w} share too few confident points to be aligned")
-        # The most confident align_fraction of the shared points (ties broken by order).
-        order = keep[np.argsort(-conf[keep], kind="stable")]
-        keep = order[: max(3, int(np.ceil(align_fraction * len(order))))]
-        target = sims[w - 1].apply(torch.from_numpy(prev["points"][keep]))
-        sims.append(umeyama(torch.from_numpy(this["points"][keep]), target, with_scale=True))
+        sims.append(align_pair(lambda q, w=w: ask(w - 1, q), lambda q, w=w: ask(w, q), windows[w - 1], windows[w],
+                               sims[w - 1], uv, align_fraction, w))
     return sims
+
+
+def identity_similarity() -> Similarity:
+    return Similarity(torch.eye(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64),
+                      torch.ones((), dtype=torch.float64))
+
+
+def align_pair(ask_previous: Callable[[np.ndarray], dict], ask_this: Callable[[np.ndarray], dict],
+               previous: tuple[int, int], this: tuple[int, int], previous_to_world: Similarity, uv: np.ndarray,
+               align_fraction: float, index: int = 1) -> Similarity:
+    """Sim(3) from window ``this``'s world to the global world, through the frames it shares with
+    ``previous`` (whose Sim(3) is ``previous_to_world``); ask_*(queries with global frame indices) ->
+    that window's answers. ``index`` names the window in errors."""
+    (a0, b0), (a1, _) = previous, this
+    shared = np.arange(a1, b0)
+    prev = ask_previous(grid_queries(uv, shared, shared, np.full_like(shared, a0)))
+    here = ask_this(grid_queries(uv, shared, shared, np.full_like(shared, a1)))
+    conf = prev["confidence"] * here["confidence"]
+    ok = np.isfinite(conf) & (conf > 0) & np.isfinite(prev["points"]).all(1) & np.isfinite(here["points"]).all(1)
+    keep = np.nonzero(ok)[0]
+    if len(keep) < 3:
+        raise UserError(f"windows {index - 1} and {index} share too few confident points to be aligned")
+    # The most confident align_fraction of the shared points (ties broken by order).
+    order = keep[np.argsort(-conf[keep], kind="stable")]
+    keep = order[: max(3, int(np.ceil(align_fraction * len(order))))]
+    target = previous_to_world.apply(torch.from_numpy(prev["points"][keep]))
+    return umeyama(torch.from_numpy(here["points"][keep]), target, with_scale=True)
+
+
+def window_camera_grid(ask: Callable[[np.ndarray], dict], first: int, frames: np.ndarray, uv: np.ndarray,
+                       window_to_world: Similarity) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The camera recipe's answers for the frames one window owns (paper Sec. 2.1): grid ``uv`` (P, 2) of
+    frame i seen in camera i (for intrinsics) and in the window's first camera ``first`` (for the pose).
+
+    ask(queries with global frame indices) -> the window's answers; frames: (F,) owned frames.
+    Returns points (F, P, 3) in camera i, their confidence (F, P), and cam_to_world (F, 4, 4) of each
+    frame in the global world (the rigid fit between the two views, after the window's Sim(3)).
+    """
+    n = len(uv)
+    # One call, each point's two queries side by side: they differ only in t_cam, so the model embeds their
+    # shared (u, v, t_src) once (EncodedScene.query, share_sources).
+    both = np.stack([grid_queries(uv, frames, frames, frames),
+                     grid_queries(uv, frames, frames, np.full_like(frames, first))], 1).reshape(-1, 5)
+    answers = ask(both)
+    here = {k: v[0::2] for k, v in answers.items()}
+    there = {k: v[1::2] for k, v in answers.items()}
+    sim = window_to_world.matrix().double().numpy()
+    # Every frame's rigid fit at once (one batched SVD, no loop over frames).
+    weights = _finite_weights(here["confidence"] * there["confidence"]).reshape(len(frames), n)
+    poses = relative_poses(here["points"].reshape(len(frames), n, 3), there["points"].reshape(len(frames), n, 3),
+                           weights)
+    c2w = np.stack([similarity_times_pose(sim, pose) for pose in poses]) if len(frames) else np.zeros((0, 4, 4))
+    return here["points"].reshape(len(frames), n, 3), here["confidence"].reshape(len(frames), n), c2w
+
+
+def window_depth(ask: Callable[[np.ndarray], dict], frames: np.ndarray, uv: np.ndarray, scale: float, height: int,
+                 width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Depth maps of the frames one window owns: every pixel of ``uv`` (height * width, 2) with
+    t_src = t_tgt = t_cam; z times the window's Sim(3) scale. Returns depth, confidence (F, H, W) float32."""
+    out = ask(grid_queries(uv, frames, frames, frames))
+    depth = (out["points"][:, 2] * scale).reshape(-1, height, width).astype(np.float32)
+    return depth, out["confidence"].reshape(-1, height, width).astype(np.float32)
+
+
+def _finite_weights(w: np.ndarray) -> np.ndarray:
+    return np.where(np.isfinite(w) & (w > 0), w, 0.0)
 
 
 def hand_off(windows: Windows, answers: dict, win: int, nxt: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
