@@ -1,0 +1,44 @@
+"""tools/average_weights.py: the weighted average of two checkpoints is what it says, loads strictly, and
+checkpoints of different architectures are refused."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+import torch
+
+from d4rt.config import D4RTConfig
+from d4rt.errors import UserError
+from d4rt.model import D4RT
+
+SCRIPT = Path(__file__).resolve().parents[2] / "tools" / "average_weights.py"
+spec = importlib.util.spec_from_file_location("average_weights", SCRIPT)
+average_weights = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(average_weights)
+
+
+def test_the_average_is_weighted_and_loads(tmp_path):
+    config = D4RTConfig.preset("tiny")
+    torch.manual_seed(0)
+    a = D4RT(config).save_pretrained(tmp_path / "a")
+    torch.manual_seed(1)
+    b = D4RT(config).save_pretrained(tmp_path / "b")
+    tensors, config_text = average_weights.average([a, b], [1.0, 3.0])
+    first, second = D4RT.from_pretrained(a).state_dict(), D4RT.from_pretrained(b).state_dict()
+    for key, value in tensors.items():
+        torch.testing.assert_close(value, 0.25 * first[key] + 0.75 * second[key], rtol=1e-6, atol=1e-7)
+    out = tmp_path / "soup"
+    out.mkdir()
+    from safetensors.torch import save_file
+
+    save_file(tensors, str(out / "model.safetensors"))
+    (out / "config.json").write_text(config_text)
+    D4RT.from_pretrained(out)  # strict load
+
+    other = D4RT(D4RTConfig.preset("tiny", decoder_depth=2)).save_pretrained(tmp_path / "c")
+    with pytest.raises(UserError, match="different configs"):
+        average_weights.average([a, other], [0.5, 0.5])
+    with pytest.raises(UserError, match="positive"):
+        average_weights.average([a, b], [1.0, 0.0])
