@@ -11,7 +11,9 @@ Sources (docs/model-card/, each written by the command named in MODEL_CARD.md):
   the oracle and constant-depth baselines, aggregate and per clip; ``eval-synthetic-dynamic-v1-colmap.json``
   the pycolmap baseline alone (``--baseline colmap`` without a checkpoint: it does not depend on the
   model, so it is not re-run with every model);
-- ``focal.json`` (tools/measure_focal.py): focal-length errors, which ``d4rt eval`` does not score.
+- ``focal.json`` (tools/measure_focal.py): focal-length errors, which ``d4rt eval`` does not score;
+- ``shipped-weights.json`` (optional; written by hand with the command that made them): the shipped
+  weights are an average of stages' weights (tools/average_weights.py), not the last stage's.
 
 Each generated section sits between ``<!-- BEGIN name -->`` and ``<!-- END name -->`` markers; the text
 around them is written by hand and never holds a measured number.
@@ -59,6 +61,8 @@ def load_sources(directory: Path = SOURCES) -> dict:
     sources[f"eval-{BENCHMARK}"]["methods"] += colmap["methods"]
     stages = sorted(directory.glob("training-stage*.json"), key=lambda p: int(p.stem.removeprefix("training-stage")))
     sources["training"] = [json.loads(p.read_text()) for p in stages]
+    shipped = directory / "shipped-weights.json"
+    sources["shipped"] = json.loads(shipped.read_text()) if shipped.is_file() else None
     return sources
 
 
@@ -71,7 +75,7 @@ def table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
 
 
-def training_section(stages: list[dict]) -> str:
+def training_section(stages: list[dict], shipped: dict | None = None) -> str:
     first = stages[0]
     rows = [["model", f"`{first['preset']}` preset, {first['parameters'] / 1e6:.2f}M parameters, "
                       f"max_frames {first['max_frames']}"]]
@@ -80,6 +84,9 @@ def training_section(stages: list[dict]) -> str:
     steps = sum(s["steps"] for s in stages)
     seconds = sum(s["training_seconds"] for s in stages)
     rows += [["total", f"{steps:,} steps, {seconds / 60:.0f} min of optimiser steps"]]
+    if shipped is not None:
+        parts = " + ".join(f"{w:g} x stage {s}" for s, w in zip(shipped["stages"], shipped["weights"]))
+        rows += [["shipped weights", f"the average {parts} (`{shipped['command']}`): no further training"]]
     return table(["", ""], rows)
 
 
@@ -182,7 +189,8 @@ def targets_section(evaluation: dict, focal: dict) -> str:
 
 def sections(sources: dict) -> dict[str, str]:
     evaluation, focal = sources[f"eval-{BENCHMARK}"], sources["focal"]
-    return {"training": training_section(sources["training"]), "results": results_section(evaluation),
+    return {"training": training_section(sources["training"], sources["shipped"]),
+            "results": results_section(evaluation),
             "pose": pose_section(evaluation), "focal": focal_section(focal),
             "targets": targets_section(evaluation, focal)}
 
