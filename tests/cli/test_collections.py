@@ -47,9 +47,12 @@ def videos(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def sequential(tmp_path_factory, videos, checkpoint) -> Path:
-    """One process over every video: the reference."""
+    """One process over every video: the reference (a process of its own, one thread like every run compared
+    with it: float sums depend on the thread count)."""
     out = tmp_path_factory.mktemp("sequential") / "out"
-    assert main(["reconstruct", str(videos), "-o", str(out), "--checkpoint", str(checkpoint), *OPTIONS]) == 0
+    run = subprocess.run(command(videos, "-o", out, "--checkpoint", checkpoint), capture_output=True, text=True,
+                         env=environment(), timeout=budget(300))
+    assert run.returncode == 0, run.stderr[-3000:]
     return out
 
 
@@ -106,7 +109,9 @@ def test_a_killed_run_resumes_with_only_the_rest(tmp_path, videos, checkpoint, s
     finished = {p.name for p in out.iterdir() if p.is_dir() and not p.name.startswith(".")}
     assert 2 <= len(finished) < NUM_VIDEOS and not (out / SUMMARY).exists()
 
-    assert main(["reconstruct", str(videos), "-o", str(out), "--checkpoint", str(checkpoint), *OPTIONS]) == 0
+    rerun = subprocess.run(command(videos, "-o", out, "--checkpoint", checkpoint), capture_output=True, text=True,
+                           env=environment(), timeout=budget(300))
+    assert rerun.returncode == 0, rerun.stderr[-3000:]
     rows = summary(out)
     assert len(rows) == NUM_VIDEOS
     done = {Path(r["output"]).name for r in rows if r["status"] == "done"}
@@ -116,7 +121,7 @@ def test_a_killed_run_resumes_with_only_the_rest(tmp_path, videos, checkpoint, s
 
 
 def test_a_corrupt_video_is_recorded_and_the_others_are_done(tmp_path, videos, checkpoint, capsys):
-    (tmp_path / "broken.mp4").write_bytes(b"this is not a video" * 20)
+    (tmp_path / "broken.mp4").write_bytes(b"this is not a video" * 20)  # exists, but cannot be decoded
     listing = tmp_path / "videos.txt"
     listing.write_text(f"# two good, one broken\n{videos / 'clip0.mp4'}\nbroken.mp4\n{videos / 'clip1.mp4'}\n")
     out = tmp_path / "out"

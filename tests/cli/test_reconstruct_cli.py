@@ -160,8 +160,10 @@ def _make_bad_inputs(d: Path, clip):
     empty.write_bytes(b"")
     corrupt = d / "corrupt.mp4"
     corrupt.write_bytes(b"\x00\x00\x00\x18ftypmp42 then garbage" * 20)
-    text = d / "notes.txt"
+    text = d / "notes.doc"
     text.write_text("hello")
+    listing = d / "notes.txt"  # a .txt input is a list of videos (many inputs): each line must exist
+    listing.write_text("hello")
     no_images = d / "no_images"
     no_images.mkdir()
     (no_images / "readme.md").write_text("nothing here")
@@ -175,15 +177,16 @@ def _make_bad_inputs(d: Path, clip):
         "missing": (d / "nope.mp4", "does not exist"),
         "empty": (empty, "is empty"),
         "corrupt": (corrupt, "cannot decode video"),
-        "unsupported": (text, "unsupported input type '.txt'"),
+        "unsupported": (text, "unsupported input type '.doc'"),
+        "list of missing videos": (listing, "notes.txt line 1: "),
         "no images": (no_images, "no images"),
         "mixed sizes": (mixed, "mixed sizes"),
         "too few frames": (one, "at least 2 are needed"),
     }
 
 
-@pytest.mark.parametrize("case", ["missing", "empty", "corrupt", "unsupported", "no images", "mixed sizes",
-                                  "too few frames"])
+@pytest.mark.parametrize("case", ["missing", "empty", "corrupt", "unsupported", "list of missing videos", "no images",
+                                  "mixed sizes", "too few frames"])
 def test_bad_inputs_one_line_and_nothing_written(tmp_path, clip, checkpoint, cli, case):
     path, message = _make_bad_inputs(tmp_path, clip)[case]
     out = tmp_path / "results" / "run"

@@ -170,11 +170,14 @@ def _read_list(path: Path) -> list[Path]:
     if not path.is_file():
         raise UserError(f"{path} does not exist")
     entries = []
-    for line in path.read_text().splitlines():
+    for number, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if line:
             entry = Path(line).expanduser()
-            entries.append(entry if entry.is_absolute() else path.parent / entry)
+            entry = entry if entry.is_absolute() else path.parent / entry
+            if not entry.exists():  # a wrong list is a wrong input: refused before any work
+                raise UserError(f"{path} line {number}: {entry} does not exist")
+            entries.append(entry)
     if not entries:
         raise UserError(f"{path} lists no input")
     return entries
