@@ -50,8 +50,7 @@ def is_collection(items: list[str]) -> bool:
     item = items[0]
     if _is_pattern(item) or item.lower().endswith(LIST_SUFFIX):
         return True
-    path = Path(item)
-    return path.is_dir() and bool(_videos_in(path)) and not _images_in(path)
+    return _is_video_folder(Path(item))
 
 
 def expand_inputs(items: list[str]) -> list[Path]:
@@ -67,7 +66,7 @@ def expand_inputs(items: list[str]) -> list[Path]:
             found += matches
         elif item.lower().endswith(LIST_SUFFIX):
             found += _read_list(Path(item))
-        elif Path(item).is_dir() and _videos_in(Path(item)) and not _images_in(Path(item)):
+        elif _is_video_folder(Path(item)):
             found += _videos_in(Path(item))
         else:
             found.append(Path(item))
@@ -185,6 +184,11 @@ def _read_list(path: Path) -> list[Path]:
 
 def _is_pattern(item: str) -> bool:
     return any(c in item for c in "*?[") and not Path(item).exists()
+
+
+def _is_video_folder(path: Path) -> bool:
+    """A folder of video files (and no images: a folder of images is one video)."""
+    return path.is_dir() and bool(_videos_in(path)) and not _images_in(path)
 
 
 def _videos_in(folder: Path) -> list[Path]:

@@ -3,15 +3,14 @@
 SOURCE is a video file, a URL or a camera device FFmpeg opens (``--format v4l2`` for /dev/video0), or
 ``-`` for raw rgb24 frames on stdin (``--size WxH``). Each window, once encoded and decoded, is written
 to ``OUT_DIR/window_NNN.npz`` (atomically) and appended to ``OUT_DIR/trajectory_tum.txt``; at the end
-``OUT_DIR/stream.json`` sums up. Ctrl-C (or SIGTERM) ends the stream: the frames received so far make the
-last window, so the files stay consistent.
+``OUT_DIR/stream.json`` sums up. Ctrl-C (or SIGTERM) ends the stream after the frame being read: the frames
+received so far make the last window, so the files stay consistent; a second one stops at once.
 """
 
 from __future__ import annotations
 
 import json
 import shutil
-import signal
 import sys
 
 from d4rt.cli import COMMANDS, parse_size
@@ -94,10 +93,12 @@ def run(args) -> int:
 
 def stream_to_folder(model, frames, out_dir, args, depth_option) -> dict:
     """Push every frame of ``frames`` ((H, W, 3) uint8, time or None) through a StreamingReconstruction and
-    write each window's result as it comes; Ctrl-C or SIGTERM ends the stream early, cleanly."""
+    write each window's result as it comes; Ctrl-C or SIGTERM ends the stream early, cleanly (the trainer's
+    StopRequest: the first signal sets a flag, a second stops at once)."""
     import numpy as np
 
     from d4rt.reconstruction.streaming import StreamingReconstruction
+    from d4rt.training.stop import StopRequest
 
     stream = None
     times: list[float] = []
@@ -114,34 +115,32 @@ def stream_to_folder(model, frames, out_dir, args, depth_option) -> dict:
                   flush=True)
             windows += 1
 
-    stopped = _StopOnSignal()
-    with stopped:
-        try:
-            for frame, stamp in frames:
-                if stream is None:
-                    h, w = frame.shape[:2]
-                    depth_size = None
-                    if depth_option == "encoder":
-                        from d4rt.reconstruction.reconstruction import encoder_resolution
+    with StopRequest() as stop:
+        for frame, stamp in frames:
+            if stream is None:
+                h, w = frame.shape[:2]
+                depth_size = None
+                if depth_option == "encoder":
+                    from d4rt.reconstruction.reconstruction import encoder_resolution
 
-                        size = model.config.image_size
-                        depth_size = encoder_resolution(h, w, (size, size))
-                    elif depth_option is not None:
-                        depth_size = depth_option
-                    stream = StreamingReconstruction(model.encode, model.config.max_frames, window=args.window,
-                                                     overlap=args.overlap, depth_size=depth_size)
-                times.append(stamp if stamp is not None else len(times) / fps)
-                write(stream.push(frame))
-                if stopped.signal:
-                    break
-        except KeyboardInterrupt:
-            print("d4rt stream: interrupted; the frames received so far make the last window", file=sys.stderr)
+                    size = model.config.image_size
+                    depth_size = encoder_resolution(h, w, (size, size))
+                elif depth_option is not None:
+                    depth_size = depth_option
+                stream = StreamingReconstruction(model.encode, model.config.max_frames, window=args.window,
+                                                 overlap=args.overlap, depth_size=depth_size)
+            times.append(stamp if stamp is not None else len(times) / fps)
+            write(stream.push(frame))
+            if stop.requested:
+                print(f"d4rt stream: {stop.requested}; the frames received so far make the last window",
+                      file=sys.stderr)
+                break
     if stream is None:
         raise UserError(f"{args.source} gave no frames")
     write(stream.finish())
     summary = {"frames": stream.count, "windows": windows, "window": stream.window, "overlap": stream.overlap,
                "latency_s": latencies, "latency_median_s": float(np.median(latencies)),
-               "latency_max_s": float(np.max(latencies)), "stopped_by": stopped.signal}
+               "latency_max_s": float(np.max(latencies)), "stopped_by": stop.requested}
     (out_dir / "stream.json").write_text(json.dumps(summary, indent=1) + "\n")
     return summary
 
@@ -167,21 +166,3 @@ def write_window(out_dir, index: int, result, timestamps) -> None:
         if index == 0:
             fh.write(HEADER)
         fh.writelines(tum_lines(timestamps, result.cam_to_world))
-
-
-class _StopOnSignal:
-    """SIGTERM ends the stream after the current frame, as Ctrl-C does (signal name in ``signal``)."""
-
-    def __init__(self):
-        self.signal = None
-
-    def __enter__(self):
-        self._previous = signal.signal(signal.SIGTERM, self._handle)
-        return self
-
-    def _handle(self, signum, frame):
-        self.signal = signal.Signals(signum).name
-
-    def __exit__(self, *exc):
-        signal.signal(signal.SIGTERM, self._previous)
-        return False

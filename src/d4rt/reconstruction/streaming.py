@@ -22,7 +22,8 @@ from d4rt.geometry.transforms import invert_rigid
 from d4rt.geometry.umeyama import Similarity
 from d4rt.reconstruction.cameras import intrinsics_from_points
 from d4rt.reconstruction.reconstruction import DEFAULT_GRID, ask_in_chunks
-from d4rt.reconstruction.windows import align_pair, identity_similarity, window_camera_grid, window_depth
+from d4rt.reconstruction.windows import (align_pair, identity_similarity, window_camera_grid, window_depth,
+                                         window_overlap)
 
 
 @dataclass
@@ -58,11 +59,9 @@ class StreamingReconstruction:
                  align_fraction: float = 0.85, chunk_size: int = 1 << 16):
         self.encode = encode
         self.window = window or max_window
-        if not 2 <= self.window <= max_window:
-            raise UserError(f"window must be between 2 and the model's {max_window} frames, got {self.window}")
-        self.overlap = max(1, self.window // 4) if overlap is None else overlap
-        if not 1 <= self.overlap < self.window:
-            raise UserError(f"overlap must be between 1 and window - 1 = {self.window - 1}, got {self.overlap}")
+        if self.window > max_window:
+            raise UserError(f"window must be at most the model's {max_window} frames, got {self.window}")
+        self.overlap = window_overlap(self.window, overlap)  # as offline: the same windows
         self.depth_size, self.grid, self.align_fraction, self.chunk_size = depth_size, grid, align_fraction, chunk_size
         self.frames: list[np.ndarray] = []  # the frames from self.start on (less than one window)
         self.start = 0  # global index of self.frames[0]

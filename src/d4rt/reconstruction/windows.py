@@ -31,14 +31,21 @@ def plan_windows(num_frames: int, window: int | None, overlap: int | None = None
     windows share at least ``overlap`` frames (default a quarter of the window, at least 1)."""
     if window is None or window >= num_frames:
         return [(0, num_frames)]
+    overlap = window_overlap(window, overlap)
+    starts = list(range(0, num_frames - window, window - overlap))
+    starts.append(num_frames - window)  # the last window ends with the video (it may overlap more)
+    return [(s, s + window) for s in starts]
+
+
+def window_overlap(window: int, overlap: int | None) -> int:
+    """The frames consecutive windows of ``window`` frames share: ``overlap``, checked, or by default a
+    quarter of the window (at least 1)."""
     if window < 2:
         raise UserError(f"window must be at least 2 frames, got {window}")
     overlap = max(1, window // 4) if overlap is None else overlap
     if not 1 <= overlap < window:
         raise UserError(f"overlap must be between 1 and window - 1 = {window - 1}, got {overlap}")
-    starts = list(range(0, num_frames - window, window - overlap))
-    starts.append(num_frames - window)  # the last window ends with the video (it may overlap more)
-    return [(s, s + window) for s in starts]
+    return overlap
 
 
 def owners(windows: Windows, frames) -> np.ndarray:
