@@ -270,3 +270,40 @@ def test_a_video_three_windows_long_is_stitched_exactly():
         assert carried.mean() > 0.8
         assert np.abs(ta.points - tb.points)[carried].max() < 1e-6 * np.abs(tb.points).max()
         assert np.array_equal(ta.visibility[carried], tb.visibility[carried])
+
+
+def test_observe_gives_the_world_tracks_at_the_chosen_frames():
+    """Sparse observations (the COLMAP model's queries) are the full world tracks at the chosen frames,
+    for one window and for stitched windows; a -1 column stays empty and a frame outside the source's
+    window is refused."""
+    from d4rt.io.output_plan import observation_frames
+
+    clip = render_clip(5, 12, 24, 32, environment="room", num_objects=4, camera_motion="orbit", moving_fraction=0.5)
+    rng = np.random.default_rng(0)
+    starts = np.stack([rng.integers(0, 12, 40), rng.uniform(0, 31, 40), rng.uniform(0, 23, 40)], 1)
+    for rec in (clip.reconstruction(), clip.reconstruction(window=6, overlap=2)):
+        targets = observation_frames(rec.windows, starts[:, 0].astype(int), 4)
+        targets[0, 1] = -1
+        seen = rec.observe(starts, targets)
+        whole = rec.tracks(starts, frame="world")
+        rows, cols = np.nonzero(targets >= 0)
+        assert seen.points.shape == (40, 4, 3) and np.isnan(seen.points[0, 1]).all() and seen.visibility[0, 1] == 0
+        scale = np.abs(whole.points[np.isfinite(whole.points)]).max()
+        np.testing.assert_allclose(seen.points[rows, cols], whole.points[rows, targets[rows, cols]], atol=1e-6 * scale)
+        np.testing.assert_allclose(seen.uv[rows, cols], whole.uv[rows, targets[rows, cols]], atol=1e-9)
+        assert np.array_equal(seen.visibility[rows, cols], whole.visibility[rows, targets[rows, cols]])
+    with pytest.raises(UserError, match="window of their source frame"):
+        rec.observe(starts[:1] * [0, 1, 1], np.array([[0, 11]]))
+
+
+def test_observation_frames_spread_over_the_window_with_the_source_among_them():
+    from d4rt.io.output_plan import observation_frames
+
+    windows = plan_windows(30, 12, 3)
+    sources = np.arange(30)
+    frames = observation_frames(windows, sources, 5)
+    assert frames.shape == (30, 5)
+    for s, row in zip(sources, frames):
+        a, b = next(w for w in windows if w[0] <= s < w[1])  # the first window holding it owns it
+        assert s in row and len(set(row)) == 5 and row.min() >= a and row.max() < b
+    assert (observation_frames([(0, 3)], np.array([1]), 5) == [[0, 1, 2, -1, -1]]).all()

@@ -14,7 +14,7 @@ import numpy as np
 from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
-from d4rt.io.formats import CAMERA_CHOICES, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST, POINT_SOURCES
+from d4rt.io.formats import CAMERA_CHOICES, COLMAP_VIEWS, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST, POINT_SOURCES
 from d4rt.io.shots import DEFAULT_THRESHOLD as DEFAULT_CUT_THRESHOLD
 from d4rt.cli import COMMANDS, parse_size
 
@@ -88,8 +88,8 @@ def register(subparsers) -> None:
                          help="point cloud from every n-th pixel (default: as dense as the depth maps)")
     outputs.add_argument("--max-points", type=int, default=DEFAULT_MAX_POINTS, metavar="N",
                          help=f"at most N points in the COLMAP model (default: {DEFAULT_MAX_POINTS:,}): confident pixels "
-                              "spread evenly over the scene, each tracked through the video and kept where seen in "
-                              "2 or more frames")
+                              f"spread evenly over the scene, each queried in {COLMAP_VIEWS} frames of its window and kept "
+                              "where seen in 2 or more")
     outputs.add_argument("--tracks", type=int, default=16, metavar="N",
                          help="track an N x N grid of points (default: 16; 0: no tracks)")
     outputs.add_argument("--track-frame", type=int, default=0, metavar="F",
@@ -160,7 +160,7 @@ def describe_work(rec, formats, resolution, point_stride: int | None, track_grid
               "points": t * -(-rec.height // stride) * -(-rec.width // stride) if "points" in needs and not derived
               else 0,
               "tracks": track_grid * track_grid * t if "tracks" in needs else 0,
-              "colmap": max_points * t if "colmap-points" in needs else 0}
+              "colmap": max_points * min(t, COLMAP_VIEWS) if "colmap-points" in needs else 0}
     total = sum(counts.values())
     parts = []
     if counts["depth"]:

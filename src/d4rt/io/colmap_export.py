@@ -23,34 +23,43 @@ _POINT2D = np.dtype([("x", "<f8"), ("y", "<f8"), ("point3D_id", "<i8")])
 
 def multiview_points(world: np.ndarray, uv: np.ndarray, visibility: np.ndarray, sources: np.ndarray,
                      intrinsics: np.ndarray, cam_to_world: np.ndarray, height: int, width: int,
-                     max_error: float | None = None) -> dict:
+                     max_error: float | None = None, frames: np.ndarray | None = None) -> dict:
     """COLMAP points from 3D tracks: each track's position at its source frame, observed at its 2D track
     position in every frame where it is visible, inside the image, and where that position reprojects
     within ``max_error`` pixels (default: 1% of the longer image side) - the filter COLMAP itself applies.
     A moving point is so one 3D point only while it stays put, and a poorly tracked one is dropped.
 
-    world: (N, T, 3) track positions in the world; uv: (N, T, 2) normalised 2D positions (the observed
-    pixels); visibility: (N, T); sources: (N,) source frames; intrinsics (T, 3, 3), cam_to_world
-    (T, 4, 4); height, width: of the frames. Tracks observed in fewer than 2 frames are dropped.
+    world: (N, K, 3) track positions in the world; uv: (N, K, 2) normalised 2D positions (the observed
+    pixels); visibility: (N, K); sources: (N,) source frames; frames: (N, K) the frame of each column
+    (-1: none; default: column k is frame k, K = T), the source frame among them; intrinsics (T, 3, 3),
+    cam_to_world (T, 4, 4); height, width: of the frames. Tracks observed in fewer than 2 frames are dropped.
     Returns the kept track indices ``index (P,)``, ``xyz (P, 3)``, the observations ``obs_point (K,)``
     (into the kept points), ``obs_frame (K,)``, ``obs_xy (K, 2)`` OpenCV pixels, and ``error (P,)`` each
     point's mean reprojection error in pixels (xyz through each observing camera vs. its observation).
     """
-    n = len(world)
+    n, k = visibility.shape
+    frames = np.broadcast_to(np.arange(k), (n, k)) if frames is None else np.asarray(frames)
     max_error = 0.01 * max(height, width) if max_error is None else max_error
-    xyz = world[np.arange(n), sources]
+    at_source = frames == np.asarray(sources)[:, None]
+    if n and not at_source.any(1).all():
+        raise ValueError("every track needs its source frame among its columns")
+    xyz = world[np.arange(n), at_source.argmax(1)]
     xy = uv * [width, height] - 0.5
-    projected, z = project(apply_transform(invert_rigid(cam_to_world)[None], xyz[:, None]), intrinsics[None])
-    residual = np.linalg.norm(projected - xy, axis=-1)
+    world_to_cam = invert_rigid(cam_to_world)
+    residual, z = np.full((n, k), np.inf), np.zeros((n, k))
+    for f in np.unique(frames[frames >= 0]):  # one camera at a time: no (N, K, 4, 4) pose array
+        rows, cols = np.nonzero(frames == f)
+        projected, z[rows, cols] = project(apply_transform(world_to_cam[f], xyz[rows]), intrinsics[f])
+        residual[rows, cols] = np.linalg.norm(projected - xy[rows, cols], axis=-1)
     inside = np.all((uv >= 0) & (uv <= 1), axis=-1)
     with np.errstate(invalid="ignore"):
-        seen = (visibility > 0.5) & inside & (z > 0) & (residual <= max_error)
+        seen = (frames >= 0) & (visibility > 0.5) & inside & (z > 0) & (residual <= max_error)
     seen &= np.isfinite(xyz).all(-1)[:, None]
     keep = np.nonzero(seen.sum(1) >= 2)[0]
-    rows, frames = np.nonzero(seen[keep])
-    error = np.bincount(rows, residual[keep][rows, frames], len(keep)) / np.maximum(np.bincount(rows, minlength=len(keep)), 1)
-    return {"index": keep, "xyz": xyz[keep], "obs_point": rows, "obs_frame": frames,
-            "obs_xy": xy[keep][rows, frames], "error": error}
+    rows, cols = np.nonzero(seen[keep])
+    error = np.bincount(rows, residual[keep][rows, cols], len(keep)) / np.maximum(np.bincount(rows, minlength=len(keep)), 1)
+    return {"index": keep, "xyz": xyz[keep], "obs_point": rows, "obs_frame": frames[keep][rows, cols],
+            "obs_xy": xy[keep][rows, cols], "error": error}
 
 
 def write_colmap(directory: str | Path, rgb: np.ndarray, intrinsics: np.ndarray, cam_to_world: np.ndarray,

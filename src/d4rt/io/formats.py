@@ -40,9 +40,12 @@ FORMAT_NEEDS = {
     "dense-tracks": {"dense", "cameras"},
 }
 DEFAULT_FPS = 10.0  # for the videos and the viewer when the input has no clock
-# Points of the COLMAP model: each is tracked through the whole video (T queries), so this bounds both
-# the file and the cost; 3D Gaussian splatting starts well from a few tens of thousands.
+# Points of the COLMAP model: each costs COLMAP_VIEWS queries, so this bounds both the file and the cost;
+# 3D Gaussian splatting starts well from a few tens of thousands.
 DEFAULT_MAX_POINTS = 50_000
+# Frames each COLMAP point is queried in (its source frame among them), spread over its window: plenty for
+# bundle adjustment and splatting, at a sixth of the queries of tracking it through 48 frames.
+COLMAP_VIEWS = 8
 # "auto" camera model: one camera unless the per-frame focal lengths' 90th / 10th percentiles differ more.
 CAMERA_CHOICES = ("auto", "single", "per-frame")
 # Where the point cloud comes from: the decoded depth maps and cameras, or the paper's direct queries.

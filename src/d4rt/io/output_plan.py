@@ -14,10 +14,11 @@ from d4rt.geometry.transforms import apply_transform
 from d4rt.geometry.view import View
 from d4rt.geometry.voxel import voxel_subsample
 from d4rt.io.colmap_export import multiview_points
-from d4rt.io.formats import CAMERA_CHOICES, DEFAULT_FPS, DEFAULT_MAX_POINTS, FORMAT_NEEDS, POINT_SOURCES, ZOOM_SPREAD
+from d4rt.io.formats import CAMERA_CHOICES, COLMAP_VIEWS, DEFAULT_FPS, DEFAULT_MAX_POINTS, FORMAT_NEEDS, POINT_SOURCES, ZOOM_SPREAD
 from d4rt.io.outputs import ReconstructionOutputs
 from d4rt.progress import progress_bar
 from d4rt.reconstruction.point_clouds import point_cloud_from_depth
+from d4rt.reconstruction.windows import owners
 
 
 def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, camera: str = "auto",
@@ -46,8 +47,8 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     "encoder" or "original" (the input's size); None: the encoder's input size where the model has one
     (the input's size for an oracle): every pixel of a full-size video is rarely what is wanted, and
     costs T * H * W tracks. max_points: at most this many points in the COLMAP model: pixels of the
-    point cloud, one per voxel (the most confident), each tracked through the video in the world
-    and kept where seen in 2 or more frames (:func:`d4rt.io.colmap_export.multiview_points`).
+    point cloud, one per voxel (the most confident), each observed in the world in COLMAP_VIEWS
+    frames of its window and kept where seen in 2 or more (:func:`d4rt.io.colmap_export.multiview_points`).
     timestamps: (T,) seconds (default: frame numbers);
     fps: for the videos and the viewer (default: from the timestamps, else 10).
     """
@@ -155,7 +156,7 @@ def _check_something_left(confidence: np.ndarray, min_confidence: float | None, 
 
 def _colmap_points(rec, out: ReconstructionOutputs, max_points: int) -> dict:
     """Multi-view points for the COLMAP model: an evenly spread, confident subset of the point cloud,
-    each pixel tracked through the video in the world (camera 0)."""
+    each pixel observed in the world (camera 0) in COLMAP_VIEWS frames of its window."""
     if not len(out.points):
         return multiview_points(np.zeros((0, rec.num_frames, 3)), np.zeros((0, rec.num_frames, 2)),
                                 np.zeros((0, rec.num_frames)), np.zeros(0, dtype=np.int64), out.video_intrinsics,
@@ -163,14 +164,36 @@ def _colmap_points(rec, out: ReconstructionOutputs, max_points: int) -> dict:
     pick = voxel_subsample(out.points, out.point_confidence, max_points)
     sources = out.point_frames[pick]
     starts = np.concatenate([sources[:, None].astype(np.float64), out.point_pixels[pick].astype(np.float64)], 1)
-    tracks = rec.tracks(starts, frame="world")
-    found = multiview_points(tracks.points, tracks.uv, tracks.visibility, sources, out.video_intrinsics,
-                             out.cam_to_world, rec.height, rec.width)
+    targets = observation_frames(rec.windows, sources, COLMAP_VIEWS)
+    seen = rec.observe(starts, targets)
+    found = multiview_points(seen.points, seen.uv, seen.visibility, sources, out.video_intrinsics,
+                             out.cam_to_world, rec.height, rec.width, frames=targets)
     if len(found["index"]) < len(pick) / 2:
-        print(f"d4rt: {len(found['index']):,} of {len(pick):,} tracked points were seen consistently (reprojecting "
-              f"within {0.01 * max(rec.height, rec.width):.1f} px) in 2 or more frames: the COLMAP model keeps only "
-              "those (the whole cloud is in points.ply)", file=sys.stderr)
+        print(f"d4rt: {len(found['index']):,} of {len(pick):,} points observed in up to {targets.shape[1]} frames each "
+              f"were seen consistently (reprojecting within {0.01 * max(rec.height, rec.width):.1f} px) in 2 or more: "
+              "the COLMAP model keeps only those (the whole cloud is in points.ply)", file=sys.stderr)
     return found | {"colors": out.point_colors[pick][found["index"]]}
+
+
+def observation_frames(windows, sources: np.ndarray, views: int) -> np.ndarray:
+    """(N, views) frames for points of the given source frames (N,): ``views`` frames spread evenly over
+    the window that owns each source (d4rt.reconstruction.windows.owners), the source frame among them
+    (it replaces the nearest of the even spread); a window shorter than ``views`` gives all its frames
+    and -1 for the rest."""
+    sources = np.asarray(sources, dtype=np.int64)
+    out = np.full((len(sources), views), -1, dtype=np.int64)
+    home = owners(windows, sources)
+    for win in np.unique(home):
+        a, b = windows[win]
+        rows = np.nonzero(home == win)[0]
+        if b - a <= views:
+            out[rows, :b - a] = np.arange(a, b)
+            continue
+        spread = np.round(np.linspace(a, b - 1, views)).astype(np.int64)  # distinct: steps are over 1 frame
+        out[rows] = spread
+        nearest = np.abs(spread[None] - sources[rows, None]).argmin(1)
+        out[rows, nearest] = sources[rows]
+    return out
 
 
 def _dense_size(rec, dense_resolution) -> tuple[int, int]:

@@ -332,6 +332,47 @@ class Reconstruction:
             back_uv[idx[go]], back_t[idx[go]], back_window[idx[go]] = new_uv[go], new_t[go], win - 1
         return Tracks(out["points"], out["visibility"], out["confidence"], out["uv"], frame, reference_frame)
 
+    def observe(self, points, targets, reference_frame: int = 0) -> Tracks:
+        """Points given as (N, 3) [t_src, x, y] (input-video pixels) at chosen frames only, in the camera of
+        ``reference_frame`` (t_cam fixed): a sparse :meth:`tracks` for when a few frames per point are
+        enough (multi-view observations for a COLMAP model) and every frame would cost T queries each.
+
+        targets: (N, K) int frames per point, -1 for none; each must lie in the window that owns the
+        point's source frame (no hand-off between windows), else it is an error.
+        Returns Tracks whose columns are the K targets: points (N, K, 3), uv (N, K, 2), visibility and
+        confidence (N, K); NaN / 0 where the target is -1.
+        """
+        self._check_frame(reference_frame, "reference_frame")
+        src = self._check_track_points(points)
+        targets = np.asarray(targets)
+        if targets.ndim != 2 or len(targets) != len(src) or not np.issubdtype(targets.dtype, np.integer):
+            raise UserError(f"targets must be (N, K) integer frames for N = {len(src)} points, got {targets.shape}")
+        n, k = targets.shape
+        out = {"points": np.full((n, k, 3), np.nan), "uv": np.full((n, k, 2), np.nan), "visibility": np.zeros((n, k)),
+               "confidence": np.zeros((n, k))}
+        t0 = src[:, 0].astype(np.int64)
+        uv0 = pixel_to_uv(src[:, 1:3], self.height, self.width)
+        home = owners(self.windows, t0)
+        single = len(self.windows) == 1
+        if not single:
+            world_to_ref = invert_rigid(self._global_pose(reference_frame))
+        for win in np.unique(home):
+            a, b = self.windows[win]
+            rows = np.nonzero(home == win)[0]
+            wanted = targets[rows]
+            if ((wanted != -1) & ((wanted < a) | (wanted >= b))).any():
+                raise UserError(f"targets must lie in the window of their source frame ({a}..{b - 1} here) or be -1")
+            r, c = np.nonzero(wanted != -1)
+            frames = wanted[r, c]
+            cam = reference_frame if single else a
+            q = np.concatenate([uv0[rows[r]], t0[rows[r], None], frames[:, None], np.full((len(r), 1), cam)], 1)
+            ans = self._ask(win, q.astype(np.float64))
+            p = ans["points"] if single else self._window_to_reference(win, ans["points"], world_to_ref)
+            for key, value in (("points", p), ("uv", ans["uv"]), ("visibility", ans["visibility"]),
+                               ("confidence", ans["confidence"])):
+                out[key][rows[r], c] = value
+        return Tracks(out["points"], out["visibility"], out["confidence"], out["uv"], "world", reference_frame)
+
     def dense_tracks(self, resolution: tuple[int, int] | None = None, batch_size: int = 1024,
                      visibility_threshold: float = 0.5) -> DenseTracks:
         """Camera-frame tracks of every pixel of every frame with the occupancy grid (Alg. 1).
