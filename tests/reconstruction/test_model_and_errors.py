@@ -61,6 +61,28 @@ def test_dense_tracking_of_a_long_video_encodes_each_window_once(model, monkeypa
     assert len(rec.source._cache) <= rec.source.cache_windows  # the usual cache size afterwards
 
 
+def test_windows_are_kept_within_the_byte_budget(model):
+    """A long video's recipes sweep the windows again and again: with the default budget each window is
+    encoded once; with no budget only the two most recent are kept and the sweeps re-encode them."""
+    from d4rt.reconstruction.sources import encoded_bytes
+
+    video = (np.random.default_rng(3).random((60, 16, 16, 3)) * 255).astype(np.uint8)
+    counts = {}
+    for budget in (None, 0):
+        rec = Reconstruction.from_model(model, video, grid=4, progress=False)
+        if budget is not None:
+            rec.source.cache_bytes = budget
+        rec.depth(resolution=(4, 4))
+        rec.cameras()
+        rec.tracks([[0, 3, 3], [59, 10, 10]])
+        counts[budget] = rec.source.encodes
+        assert len(rec.source._cache) >= 2
+        if budget == 0:
+            assert len(rec.source._cache) == 2
+    assert len(rec.windows) == 3 and counts[None] == 3 and counts[0] > 3, counts
+    assert 0 < encoded_bytes(next(iter(rec.source._cache.values()))) < 20e6
+
+
 def test_bad_inputs_fail_clearly(room_clip):
     with pytest.raises(UserError, match="covers 8 frames but the video has 7"):
         Reconstruction(room_clip.oracle, room_clip.rgb[:7])

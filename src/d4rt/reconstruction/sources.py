@@ -48,21 +48,37 @@ class AnswererSource:
         return _FrameRange(self.answerer, start, stop)
 
 
+# Encoded windows kept beyond the two most recent while they fit in this many bytes: a long video's
+# recipes (alignment, depth, cameras, tracks) each sweep the windows, and a window re-encoded costs an
+# encoder pass, while a kept one costs its tokens and keys/values (about 6 MB for the tiny preset).
+DEFAULT_CACHE_BYTES = 1 << 30
+
+
+def encoded_bytes(answerer) -> int:
+    """Bytes an encoded window holds in tensors (scene tokens, patch video, cached keys/values)."""
+    tensors = [getattr(answerer, "tokens", None), getattr(answerer, "patch_video", None)]
+    tensors += [t for pair in (getattr(answerer, "_kv", None) or []) for t in pair]
+    return sum(t.numel() * t.element_size() for t in tensors if t is not None)
+
+
 class ModelSource:
-    """A D4RT model over a video: each window is encoded when it is first asked for. The most recently
-    used ``cache_windows`` encoded windows are kept (2 by default: window alignment works on
-    consecutive pairs), so memory is bounded by a few windows, not the video; inside :meth:`keeping`
-    (dense tracking) more are kept. ``encodes`` counts the windows encoded so far; ``on_encode``, if
-    given, is called with no argument after each encode (a progress bar's update, say)."""
+    """A D4RT model over a video: each window is encoded when it is first asked for. Encoded windows are
+    kept, least recently used released first, while they fit in ``cache_bytes`` (default
+    DEFAULT_CACHE_BYTES), and the ``cache_windows`` most recent always (2 by default: window alignment
+    works on consecutive pairs), so memory is bounded by the budget, not the video; inside
+    :meth:`keeping` (dense tracking) a given number are kept whatever their size. ``encodes`` counts the
+    windows encoded so far; ``on_encode``, if given, is called with no argument after each encode (a
+    progress bar's update, say)."""
 
     def __init__(self, model, video, max_window: int | None = None, cache_windows: int = 2,
-                 on_encode: Callable[[], object] | None = None):
+                 on_encode: Callable[[], object] | None = None, cache_bytes: int = DEFAULT_CACHE_BYTES):
         self.model, self.video, self.on_encode = model, video, on_encode
         self.num_frames = int(video.shape[0])
         self.max_window = max_window or model.config.max_frames
         size = model.config.image_size
         self.encoder_size = (size, size)
         self.cache_windows = max(1, cache_windows)
+        self.cache_bytes = cache_bytes
         self._cache: dict[tuple[int, int], Answerer] = {}  # insertion order = recency
         self.encodes = 0
 
@@ -71,13 +87,23 @@ class ModelSource:
         if key in self._cache:
             self._cache[key] = self._cache.pop(key)  # most recent last
             return self._cache[key]
-        while len(self._cache) >= self.cache_windows:
-            self._cache.pop(next(iter(self._cache)))  # release the least recently used window first
+        self._release(room_for=1)
         self._cache[key] = self.model.encode(self.video[start:stop])
         self.encodes += 1
         if self.on_encode is not None:
             self.on_encode()
         return self._cache[key]
+
+    def _release(self, room_for: int = 0) -> None:
+        """Release least recently used windows beyond the ``cache_windows`` newest while the cache is
+        over its byte budget (making ``room_for`` more windows count against the newest: a window about
+        to be encoded is budgeted as the largest kept one)."""
+        def total() -> int:
+            sizes = [encoded_bytes(a) for a in self._cache.values()]
+            return sum(sizes) + room_for * max(sizes, default=0)
+
+        while len(self._cache) + room_for > self.cache_windows and total() > self.cache_bytes:
+            self._cache.pop(next(iter(self._cache)))
 
     @contextmanager
     def keeping(self, count: int):
@@ -90,8 +116,7 @@ class ModelSource:
             yield self
         finally:
             self.cache_windows = usual
-            while len(self._cache) > usual:
-                self._cache.pop(next(iter(self._cache)))
+            self._release()
 
 
 class _FrameRange:
