@@ -226,6 +226,7 @@ def test_bad_options_and_debug(tmp_path, clip, cli):
                             (["--resolution", "big"], "--resolution must be"),
                             (["--outputs", "ply,obj"], "unknown output format"),
                             (["--stride", "0"], "stride must be >= 1"),
+                            (["--threads", "0"], "--threads must be >= 1"),
                             (["--device", "cuda:7"] if not torch.cuda.is_available() else ["--device", "nonsense"],
                              "--device")):
         r = cli("reconstruct", video, "-o", tmp_path / "out", *option)
@@ -284,3 +285,18 @@ def test_every_format_has_a_cli_name(capsys):
         main(["reconstruct", "--help"])
     text = "".join(capsys.readouterr().out.split())  # the help wraps lines anywhere, even at hyphens
     assert done.value.code == 0 and all(name in text for name in FORMATS)
+
+
+def test_default_output_size_is_the_inputs_up_to_vga_pixels(capsys):
+    from d4rt.cli.reconstruct import default_resolution, parse_resolution
+    from d4rt.errors import UserError
+
+    assert parse_resolution("auto") == "auto" and parse_resolution("original") is None
+    assert default_resolution(480, 640) is None and default_resolution(272, 640) is None
+    assert capsys.readouterr().err == ""
+    assert default_resolution(3000, 4000) == (480, 640)  # 12 megapixels -> VGA, same 4:3
+    assert "outputs at 640x480, not the input's 4000x3000" in capsys.readouterr().err
+    h, w = default_resolution(1080, 2538)  # 2.35:1 keeps its shape
+    assert abs(w / h - 2538 / 1080) < 0.01 and h * w <= 1.01 * 640 * 480
+    with pytest.raises(UserError, match="'original', 'encoder' or WIDTHxHEIGHT"):
+        parse_resolution("auto", "--dense-resolution")

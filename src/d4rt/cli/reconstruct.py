@@ -8,6 +8,7 @@ A thin layer over the Python API: ``load_frames`` -> ``Reconstruction.from_model
 from __future__ import annotations
 
 import json
+import sys
 from contextlib import nullcontext
 
 import numpy as np
@@ -56,6 +57,9 @@ def register(subparsers) -> None:
                        help="auto (the default): bfloat16 autocast where the device computes it natively (GPUs, "
                             "CPUs with AMX-BF16 or AVX512-BF16), else float32 (emulated bf16 is slower)")
     model.add_argument("--bf16", action="store_const", const="bf16", dest="dtype", help="same as --dtype bf16")
+    model.add_argument("--threads", type=int, default=None, metavar="N",
+                       help="CPU threads for torch (default: torch's choice, one per core; queries are decoded in "
+                            "chunks of 4,096, where more threads pay: docs/performance.md)")
     outputs = p.add_argument_group("outputs")
     outputs.add_argument("--intrinsics", metavar="FX,FY,CX,CY", default=None,
                          help="known intrinsics in pixels of the input frames, OpenCV convention (top-left pixel "
@@ -72,9 +76,11 @@ def register(subparsers) -> None:
                               "default: single unless the per-frame focal lengths differ by more than 15%%)")
     outputs.add_argument("--non-square-pixels", action="store_true",
                          help="estimate fx and fy separately (default: square pixels, fx = fy)")
-    outputs.add_argument("--resolution", default="original",
-                         help="depth maps at 'original' (the default: the input's size), 'encoder' (about the model's "
-                              "input pixel count, at the input's aspect ratio) or WIDTHxHEIGHT")
+    outputs.add_argument("--resolution", default="auto",
+                         help="depth maps at 'auto' (the default: the input's size up to 640x480 pixels' worth, "
+                              "larger inputs scaled down at their aspect ratio with a notice), 'original' (the input's "
+                              "size, however large: one query per pixel and frame), 'encoder' (about the model's input "
+                              "pixel count, at the input's aspect ratio) or WIDTHxHEIGHT")
     outputs.add_argument("--min-confidence", type=float, default=None, metavar="C",
                          help="drop points and depth pixels below this confidence (default: keep all). The scale is "
                               "the model's own: positive, higher is more certain, comparable within one video only "
@@ -114,16 +120,36 @@ def parse_intrinsics(text: str) -> np.ndarray:
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
+# The default output size: the input's, at most this many pixels (VGA's): 4 frames of 12 megapixels would
+# otherwise decode some 100M queries unasked; --resolution original asks for every input pixel.
+MAX_DEFAULT_PIXELS = 640 * 480
+
+
 def parse_resolution(text: str, option: str = "--resolution"):
-    """'original' -> None, 'encoder' -> 'encoder', 'WxH' -> (H, W); a bad value names ``option``."""
-    if text in ("original", "encoder"):
+    """'original' -> None, 'encoder' -> 'encoder', 'auto' -> 'auto' (--resolution only), 'WxH' -> (H, W);
+    a bad value names ``option``."""
+    if text in ("original", "encoder") or (text == "auto" and option == "--resolution"):
         return None if text == "original" else text
     try:
         if "x" not in text.lower():  # a lone N would mean N x N: a square that ignores the video's shape
             raise UserError(text)
         return parse_size(text, option)
     except UserError:
-        raise UserError(f"{option} must be 'original', 'encoder' or WIDTHxHEIGHT (e.g. 640x480), got {text!r}") from None
+        choices = "'auto', 'original', 'encoder'" if option == "--resolution" else "'original', 'encoder'"
+        raise UserError(f"{option} must be {choices} or WIDTHxHEIGHT (e.g. 640x480), got {text!r}") from None
+
+
+def default_resolution(height: int, width: int, max_pixels: int = MAX_DEFAULT_PIXELS):
+    """The 'auto' output size of a height x width input: None (the input's own) up to ``max_pixels``, else
+    (h, w) of about ``max_pixels`` at the input's aspect ratio, with a one-line notice."""
+    if height * width <= max_pixels:
+        return None
+    from d4rt.reconstruction.reconstruction import encoder_resolution
+
+    h, w = encoder_resolution(height, width, (max_pixels, 1))
+    print(f"d4rt: outputs at {w}x{h}, not the input's {width}x{height} (one query per output pixel and frame); "
+          "--resolution original keeps the input's size", file=sys.stderr)
+    return h, w
 
 
 def has_bundled_model() -> bool:
@@ -196,11 +222,17 @@ def run(args) -> int:
                         else parse_resolution(args.dense_resolution, "--dense-resolution"))
     formats = parse_formats(args.outputs)
     selection = FrameRange(args.start, args.end, args.stride, args.max_frames)
+    if args.threads is not None and args.threads < 1:
+        raise UserError(f"--threads must be >= 1, got {args.threads}")
     save_options = dict(resolution=resolution, intrinsics=intrinsics, camera=args.camera,
                         square_pixels=not args.non_square_pixels, min_confidence=args.min_confidence,
                         point_stride=args.point_stride, points_from=args.points_from, track_grid=args.tracks,
                         track_frame=args.track_frame, dense_resolution=dense_resolution, max_points=args.max_points,
                         progress=True)
+    if args.threads is not None:
+        import torch
+
+        torch.set_num_threads(args.threads)
     if many:
         return run_many(args, selection, formats, save_options)
     out_dir = check_output_dir(args.out, args.overwrite)
@@ -270,6 +302,8 @@ def reconstruct_frames(model, frames, out_dir, args, formats, save_options, bf16
         raise UserError(f"--track-frame {args.track_frame} is past the end of a shot (shots: "
                         f"{', '.join(f'{a}..{b - 1}' for a, b in shots)}); it counts from each shot's first frame")
     options = dict(save_options, fps=frames.fps)
+    if options["resolution"] == "auto":
+        options["resolution"] = default_resolution(h, w)
     stamps = frames.timestamps if frames.has_clock else None
     autocast = torch.autocast(device.type, dtype=torch.bfloat16) if bf16 else nullcontext()
     with autocast:
