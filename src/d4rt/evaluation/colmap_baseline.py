@@ -43,9 +43,11 @@ class ColmapPredictor:
         c2w, registered, notes = self.reconstruct(sequence.rgb)
         return Prediction(cam_to_world=c2w, registered=registered, notes=notes)
 
-    def reconstruct(self, rgb: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    def reconstruct(self, rgb: np.ndarray, intrinsics: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """frames (T, H, W, 3) uint8 -> (camera-to-world (T, 4, 4) with identity where unregistered,
-        registered (T,) bool, notes)."""
+        registered (T,) bool, notes). intrinsics: a known (3, 3) camera (pixels, OpenCV centres) shared by
+        every frame, held fixed (PINHOLE, no refinement), instead of a SIMPLE_RADIAL camera to estimate."""
         import pycolmap
 
         t = len(rgb)
@@ -61,13 +63,20 @@ class ColmapPredictor:
             pycolmap.set_random_seed(self.seed)
             extraction = pycolmap.FeatureExtractionOptions()
             extraction.use_gpu = False
+            reader = pycolmap.ImageReaderOptions()
+            options = pycolmap.IncrementalPipelineOptions()
+            if intrinsics is not None:  # COLMAP's pixel centres are at +0.5
+                k = np.asarray(intrinsics, dtype=np.float64)
+                reader.camera_model = "PINHOLE"
+                reader.camera_params = f"{k[0, 0]},{k[1, 1]},{k[0, 2] + 0.5},{k[1, 2] + 0.5}"
+                options.ba_refine_focal_length = options.ba_refine_principal_point = False
+                options.ba_refine_extra_params = False
             pycolmap.extract_features(database, images, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
-                                      extraction_options=extraction, device=pycolmap.Device.cpu)
+                                      reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
             if t <= EXHAUSTIVE_MAX_FRAMES:
                 pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
             else:
                 pycolmap.match_sequential(database, device=pycolmap.Device.cpu)
-            options = pycolmap.IncrementalPipelineOptions()
             options.random_seed = self.seed
             options.num_threads = 1
             models = pycolmap.incremental_mapping(database, images, output, options)

@@ -2,13 +2,11 @@
 
 The recipe is the one users call, ``model.reconstruct(video).cameras()`` (paper Sec. 2.1): encode the
 clip, query a grid of every frame in its own camera and in the reference camera, fit intrinsics by
-the pinhole median and poses by Umeyama. FPS = frames / wall time, encoder included. Optionally the
-same clip goes through COLMAP's incremental SfM (``d4rt.evaluation.colmap_baseline``) for comparison.
+the pinhole median and poses by Umeyama. FPS = frames / wall time, encoder included. The comparison
+with COLMAP on equal terms is :mod:`d4rt.speed.colmap_comparison`.
 """
 
 from __future__ import annotations
-
-import time
 
 import torch
 
@@ -31,17 +29,3 @@ def bench_pose(model, video: torch.Tensor, options: BenchOptions) -> dict:
         seconds = best_time(run, device, options.repeats)
     return {"pose_s": seconds, "pose_fps": frames / seconds, "pose_frames": frames,
             "pose_grid": options.pose_grid or DEFAULT_GRID}
-
-
-def bench_colmap(video: torch.Tensor, pose_s: float) -> dict:
-    """COLMAP (pycolmap: SIFT, exhaustive matching, incremental mapping, on the CPU) on the same clip,
-    timed once from frames in memory to poses; speed-up = COLMAP time / D4RT pose time."""
-    from d4rt.evaluation.colmap_baseline import ColmapPredictor  # raises a UserError naming the extra if missing
-
-    predictor = ColmapPredictor()
-    start = time.perf_counter()
-    _, registered, notes = predictor.reconstruct(video.numpy())
-    seconds = time.perf_counter() - start
-    return {"colmap_s": seconds, "colmap_fps": video.shape[0] / seconds,
-            "colmap_registered_frames": int(registered.sum()), "colmap_notes": notes,
-            "pose_speedup_vs_colmap": seconds / pose_s}

@@ -60,9 +60,10 @@ def format_table(result: dict) -> str:
         f"camera pose  {p['pose_frames']} frames in {p['pose_s'] * 1e3:.1f} ms: {_num(p['pose_fps'])} FPS (encoder included, "
         f"{p['pose_grid']}x{p['pose_grid']} grid)",
     ]
-    if "colmap_s" in p:
-        lines.append(f"  COLMAP on the same clip {p['colmap_s']:.2f} s ({p['colmap_registered_frames']} of "
-                     f"{p['pose_frames']} frames registered): D4RT is {p['pose_speedup_vs_colmap']:.1f}x faster")
+    if "colmap" in p:
+        from d4rt.speed.colmap_comparison import describe
+
+        lines += ["", *describe(p["colmap"])]
     lines += ["", "full-video 3D tracks while holding a target FPS (Tab. 3: encode + decode, wall <= T / FPS)"]
     for fps, r in result["tracks"].items():
         note = "" if r["bracketed"] else "  (lower bound: trials ran out before a failing count)"

@@ -11,7 +11,7 @@ from d4rt.speed.decoder import bench_decoder
 from d4rt.speed.dense import bench_dense
 from d4rt.speed.encoder import bench_encoder
 from d4rt.speed.options import BenchOptions, make_model, make_video
-from d4rt.speed.pose import bench_colmap, bench_pose
+from d4rt.speed.pose import bench_pose
 from d4rt.speed.timing import measure_peak, peak_rss_bytes, reset_peak_memory
 from d4rt.speed.tracks import bench_tracks_at_fps
 
@@ -63,10 +63,14 @@ def run_benchmark(options: BenchOptions, log=print) -> dict:
     log("camera pose ...")
     pose = part("pose", lambda: bench_pose(model, video, options))
     if options.compare_colmap:
-        log("camera pose with COLMAP (same clip) ...")
-        colmap, pose["colmap_peak_rss_bytes"] = measure_peak(torch.device("cpu"),
-                                                             lambda: bench_colmap(video, pose["pose_s"]))
-        pose.update(colmap)
+        from d4rt.speed.colmap_comparison import compare_with_colmap
+        from d4rt.model.weights import bundled_model_dir
+
+        log("camera pose beside COLMAP (same clip; cold and warm; with and without known intrinsics) ...")
+        trained = options.preset == "tiny" and (bundled_model_dir() / "model.safetensors").is_file()
+        judged = type(model).from_pretrained(device=device) if trained else model
+        pose["colmap"], pose["colmap_peak_rss_bytes"] = measure_peak(
+            torch.device("cpu"), lambda: compare_with_colmap(judged, options, trained))
     log("tracks at target FPS (Tab. 3) ...")
     tracks = part("tracks", lambda: bench_tracks_at_fps(model, video, options, decoder["track_shared_queries_per_s"]))
     log("dense tracking ...")
