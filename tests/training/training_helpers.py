@@ -23,8 +23,9 @@ def fast_config(clip_dir: Path, **sections) -> dict:
                  "dataset": {"source": "files", "directory": str(clip_dir), "frames": 4, "size": [32, 32],
                              "sampler": {"num_queries": 64}}},
         "optim": {"lr": 1e-3, "warmup_steps": 2},
-        "run": {"max_steps": 6, "device": "cpu", "log_every": 1, "checkpoint_every": 2, "tensorboard": False,
-                "progress": False},
+        # fp32: exact comparisons mean the same on every CPU (auto is bf16 on AMX-BF16 CPUs only)
+        "run": {"max_steps": 6, "device": "cpu", "precision": "fp32", "log_every": 1, "checkpoint_every": 2,
+                "tensorboard": False, "progress": False},
         "validation": {"every": 0},
     }
     config = copy.deepcopy(config)

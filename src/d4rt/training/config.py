@@ -113,7 +113,8 @@ class RunConfig:
     max_steps: optimiser steps (``d4rt train --max-steps`` overrides it). grad_accum: micro-batches per
     step. seed: model initialisation, data order and per-rank random streams. device: ``auto`` (the
     local GPU under torchrun, else the first GPU, else CPU), ``cpu``, ``cuda``. precision: ``auto``
-    (bf16 autocast on GPU, fp32 on CPU), ``fp32`` or ``bf16``. strategy: ``auto`` (DDP when launched
+    (bf16 autocast where the device computes it natively: GPUs, CPUs with AMX-BF16 or AVX512-BF16; else
+    fp32), ``fp32`` or ``bf16``. strategy: ``auto`` (DDP when launched
     with several processes, else single), ``single``, ``ddp`` or ``fsdp`` (``fully_shard`` per encoder
     block, for the large presets). log_every / checkpoint_every: in steps. keep_checkpoints: newest
     checkpoints kept on disk. tensorboard: write TensorBoard event files. progress: show a progress bar.

@@ -34,6 +34,7 @@ import torch
 import torch.distributed as dist
 
 from d4rt.config import D4RTConfig
+from d4rt.devices import native_bf16
 from d4rt.errors import UserError
 from d4rt.model import D4RT
 from d4rt.model.weights import CONFIG_NAME, WEIGHTS_NAME, check_state_dict
@@ -104,7 +105,9 @@ class Trainer:
         self.out = Path(out)
         self.context = context
         self.strategy = resolve_strategy(config.run.strategy, context)
-        bf16 = config.run.precision == "bf16" or (config.run.precision == "auto" and context.device.type == "cuda")
+        # auto: bf16 where the device computes it natively (the recipe study measured the same loss per step
+        # as fp32 on an AMX CPU, and more steps per minute); emulated bf16 would be slower than fp32.
+        bf16 = config.run.precision == "bf16" or (config.run.precision == "auto" and native_bf16(context.device))
         self.autocast = torch.autocast(context.device.type, dtype=torch.bfloat16, enabled=bf16)
 
     # ------------------------------------------------------------------------------------------ set-up
