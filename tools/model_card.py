@@ -99,7 +99,8 @@ def stage_summary(training: dict, number: int) -> str:
     crops = {"paper": "the paper's random crops", "centered": "centred crops",
              "none": "whole frames (no crop)"}[dataset.get("augment", {}).get("crop_policy", "paper")]
     source = "rendered on the fly (each seen once)" if dataset["source"] == "render" else "read from files"
-    start = f"from stage {number - 1}'s weights; " if number > 1 else "from scratch; "
+    start = (f"from {training['starts_from']}; " if training.get("starts_from")
+             else f"from stage {number - 1}'s weights; " if number > 1 else "from scratch; ")
     when = ("in several runs, each resumed from the previous one's last checkpoint" if training["resumed"] else
             f"{training['wall_seconds'] / 60:.0f} min wall time with validation and checkpoints")
     return (f"{start}{training['clips_seen']:,} synthetic clips {source}, {frames_text} at "

@@ -81,8 +81,13 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True, help="JSON file to write")
     parser.add_argument("--log", type=Path, help="the console output of d4rt train (tells whether it resumed)")
     parser.add_argument("--copy-metrics", type=Path, help="also copy the run's metrics.jsonl here")
+    parser.add_argument("--starts-from", metavar="TEXT",
+                        help="what the run's model.init_from weights were, in words for the model card (default: "
+                             "the previous stage's weights)")
     args = parser.parse_args()
     summary = summarise(args.run, args.log)
+    if args.starts_from:
+        summary["starts_from"] = args.starts_from
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(summary, indent=1) + "\n")
     if args.copy_metrics:
