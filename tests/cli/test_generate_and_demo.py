@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 import pytest
 import torch
 
@@ -99,6 +100,10 @@ def test_demo_without_a_model_answers_with_the_oracle(tmp_path, capsys):
     errors = printed_errors(stdout)
     assert all(errors[name] < 1e-5 for name in ("AbsRel", "ATE", "focal length error", "L1")), errors
     assert "delta<1.25 100.0%" in stdout and "APD3D 100.0%" in stdout
+    # The figures: an exact path lies on the truth; an exact depth map has no error.
+    for name in ("trajectory.png", "depth.png"):
+        with Image.open(tmp_path / "synthetic" / name) as image:
+            assert image.size[0] > 600 and image.size[1] > 250, name
 
 
 def test_demo_real_frames_with_a_model(tmp_path, capsys):

@@ -91,8 +91,10 @@ def run_synthetic(model, out: Path) -> None:
                                   overwrite=True, progress=True)
     print(f"wrote {out}/: {', '.join(p.name for p in paths)}")
     with np.load(out / "reconstruction.npz") as saved:
-        for line in accuracy_report(clip, dict(saved)):
-            print("  " + line)
+        saved = dict(saved)
+    for line in accuracy_report(clip, saved):
+        print("  " + line)
+    write_plots(out, saved, clip.rgb, clip)
 
 
 def run_real(model, out: Path, resolution=(120, 160), point_stride: int = 2) -> None:
@@ -113,11 +115,41 @@ def run_real(model, out: Path, resolution=(120, 160), point_stride: int = 2) -> 
                                   point_stride=point_stride, overwrite=True, progress=True)
     print(f"wrote {out}/: {', '.join(p.name for p in paths)}")
     with np.load(out / "reconstruction.npz") as saved:
-        shared = float(np.median(saved["video_intrinsics"][:, 0, 0]))
+        saved = dict(saved)
+    write_plots(out, saved, frames.rgb)
+    shared = float(np.median(saved["video_intrinsics"][:, 0, 0]))
     fx = float(np.median(rec.cameras().intrinsics[:, 0, 0]))  # the paper's per-frame recipe, as MODEL_CARD.md
     print(f"  real frames: focal length {fx:.1f} px vs the published fx = {TUM_FX} px "
           f"({100 * (fx / TUM_FX - 1):+.1f}%; median of the per-frame estimates; the files' shared camera: "
           f"f = {shared:.1f} px)")
+
+
+def write_plots(out: Path, saved: dict, rgb: np.ndarray, clip=None) -> None:
+    """trajectory.png (top and side views; with a clip, its true path beside the estimate aligned to it by
+    Sim(3)) and depth.png (the middle frame's depth and confidence; with a clip, its relative error after
+    one scale for the clip), when matplotlib is installed."""
+    from d4rt.viz.plots import depth_figure, plots_available, trajectory_figure
+
+    if not plots_available():
+        print("  plots skipped (trajectory.png, depth.png): they need matplotlib, pip install 'd4rt[viewer]'")
+        return
+    poses, reference, true_depth = saved["cam_to_world"], None, None
+    k = len(poses) // 2
+    depth = saved["depth"][k]
+    if clip is not None:
+        from d4rt.evaluation.metrics.pose import align_trajectory, sim3_alignment
+        from d4rt.geometry.transforms import invert_rigid
+
+        reference = invert_rigid(clip.cam_to_world[0]) @ clip.cam_to_world
+        poses = align_trajectory(sim3_alignment(poses, reference), poses)
+        if saved["depth"].shape == clip.depth.shape:
+            ok = np.isfinite(saved["depth"]) & (saved["depth"] > 0) & (clip.depth > 0)
+            depth = depth * float(np.median(clip.depth[ok] / saved["depth"][ok]))  # one scale for the clip
+            true_depth = clip.depth[k]
+    trajectory_figure(out / "trajectory.png", poses, reference,
+                      "camera path (estimate aligned to the truth by Sim(3))" if clip is not None else "camera path")
+    depth_figure(out / "depth.png", rgb[k], depth, saved["confidence"][k], true_depth, f"frame {k}")
+    print(f"  plots: {out / 'trajectory.png'}, {out / 'depth.png'}")
 
 
 def accuracy_report(clip, saved: dict) -> list[str]:
