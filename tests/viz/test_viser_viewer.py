@@ -5,6 +5,7 @@ Every server binds to 127.0.0.1 on a free port and is stopped by the test."""
 from __future__ import annotations
 
 import io
+import os
 import shutil
 import socket
 import time
@@ -98,6 +99,9 @@ def test_chromium_draws_the_points_of_each_frame(output_folder, tmp_path):
             first = settled_screenshot()
             viewer.frame = 5
             last = settled_screenshot()
+            if os.environ.get("D4RT_SCREENSHOT_DIR"):  # the README's screenshot is made here
+                Image.fromarray(last.astype(np.uint8)).save(Path(os.environ["D4RT_SCREENSHOT_DIR"]) / "viewer.png",
+                                                            optimize=True)
             browser.close()
     finally:
         viewer.close()

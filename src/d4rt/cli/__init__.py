@@ -23,6 +23,7 @@ from d4rt.progress import set_progress
 COMMANDS = {"reconstruct": 'reconstruct a video in 4D and write depth, cameras, points, tracks and viewers',
             "stream": 'reconstruct a live video (camera, URL, pipe) window by window as frames arrive',
             "view": "explore a reconstruction in an interactive 3D viewer in the browser (viser)",
+            "app": "a local web app: upload a video, get its reconstruction back (gradio)",
             "demo": 'every output on the bundled samples (no arguments needed)',
             "eval": 'evaluate a checkpoint and baselines on a benchmark',
             "generate": 'render synthetic clips with exact ground truth',
