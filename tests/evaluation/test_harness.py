@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+from PIL import Image
 import pytest
 import torch
 
@@ -107,6 +108,27 @@ def test_cli_eval_with_a_checkpoint(tmp_path, tiny_checkpoint, capsys):
     assert d4rt["aggregate"]["abs_rel[scale]"] > 1e-3
     assert methods["oracle"]["aggregate"]["apd3d"] == 1.0
     assert results["benchmark"]["format"] == "synthetic"
+    # The figure beside the JSON: error by confidence decile, AbsRel per sequence.
+    assert f"wrote {out.with_suffix('.png')}" in printed
+    with Image.open(out.with_suffix(".png")) as image:
+        assert image.size[0] > 1000
+
+
+def test_confidence_error_samples_follow_the_sequence_alignment():
+    from d4rt.evaluation.harness import confidence_error_samples
+    from d4rt.evaluation.metrics.depth import evaluate_depth
+
+    rng = np.random.default_rng(1)
+    gt = rng.uniform(1, 5, (3, 20, 30))
+    gt[0, 0, :5] = 0  # no ground truth there
+    confidence = rng.uniform(0.1, 1, gt.shape)
+    pred = 0.5 * gt + 0.2  # exact up to scale and shift
+    pred[1, 4, 4] = 100.0  # one bad pixel
+    fit = evaluate_depth(pred, gt, "scale&shift")
+    samples = confidence_error_samples(pred, confidence, gt, fit, count=10_000)
+    assert samples.shape == (3 * 20 * 30 - 5, 2)
+    assert np.sort(samples[:, 1])[-2] < 1e-6 and samples[:, 1].max() > 10  # only the bad pixel is wrong
+    assert len(confidence_error_samples(pred, confidence, gt, fit, count=100)) == 100
 
 
 def test_cli_errors(tmp_path, capsys):

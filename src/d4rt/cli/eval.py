@@ -56,4 +56,25 @@ def run(args) -> int:
     print(to_markdown(benchmark, results))
     out = args.out or Path(f"d4rt-eval-{benchmark.name.replace(':', '-').replace('/', '-')}.json")
     print(f"wrote {write_json(out, benchmark, results)}")
+    if "depth" in benchmark.tasks and benchmark.depth_alignments:
+        write_figure(out.with_suffix(".png"), benchmark, results)
     return 0
+
+
+def write_figure(path, benchmark, results) -> None:
+    """The depth figure beside the JSON (d4rt.viz.plots.evaluation_figure), when matplotlib is installed."""
+    import numpy as np
+
+    from d4rt.viz.plots import evaluation_figure, plots_available
+
+    if not plots_available():
+        print(f"figure skipped ({path.name}): it needs matplotlib, pip install 'd4rt[viewer]'")
+        return
+    align = benchmark.depth_alignments[0]
+    confidence = {r.method: np.concatenate([row.confidence_errors for row in r.rows])
+                  for r in results if any(row.confidence_errors is not None for row in r.rows)
+                  and all(row.confidence_errors is not None for row in r.rows)}
+    abs_rel = {r.method: [row.metrics.get(f"abs_rel[{align}]") for row in r.rows] for r in results
+               if any(row.metrics.get(f"abs_rel[{align}]") is not None for row in r.rows)}
+    names = [row.name for row in results[0].rows]
+    print(f"wrote {evaluation_figure(path, confidence, abs_rel, names, align)}")

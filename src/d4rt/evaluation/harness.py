@@ -54,6 +54,9 @@ class SequenceResult:
     pose_errors: tuple[np.ndarray, np.ndarray] | None = None
     frames: int = 0
     registered: int = 0
+    # (K, 2) [confidence, relative depth error] of up to CONFIDENCE_SAMPLES valid pixels, the first depth
+    # alignment applied: whether the method's confidence tells its good pixels from its bad ones.
+    confidence_errors: np.ndarray | None = None
 
 
 @dataclass
@@ -92,6 +95,10 @@ def evaluate_sequence(benchmark: Benchmark, sequence: EvalSequence, prediction: 
                                 clip_max=benchmark.clip_max)
             result.depth[align] = ev
             m[f"abs_rel[{align}]"], m[f"delta<1.25[{align}]"] = ev.abs_rel, ev.delta_1_25
+        if prediction.depth_confidence is not None:
+            result.confidence_errors = confidence_error_samples(prediction.depth, prediction.depth_confidence,
+                                                                sequence.depth, result.depth[benchmark.depth_alignments[0]],
+                                                                benchmark.max_depth)
     if "pose" in tasks and sequence.cam_to_world is not None and prediction.cam_to_world is not None:
         _score_poses(result, sequence, prediction)
     tracks = sequence.tracks
@@ -107,6 +114,25 @@ def evaluate_sequence(benchmark: Benchmark, sequence: EvalSequence, prediction: 
     if gt_map is not None and prediction.point_map is not None:
         m["pc_l1"] = _point_cloud_l1(benchmark, sequence, prediction, gt_map)
     return result
+
+
+CONFIDENCE_SAMPLES = 4096
+
+
+def confidence_error_samples(depth: np.ndarray, confidence: np.ndarray, gt: np.ndarray, fit: DepthEvaluation,
+                             max_depth: float | None = None, count: int = CONFIDENCE_SAMPLES) -> np.ndarray:
+    """(K, 2) [confidence, |aligned depth - gt| / gt] at up to ``count`` valid pixels drawn with a fixed seed,
+    the depth aligned by ``fit``'s scale and shift (the sequence's own alignment)."""
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(gt) & (gt > 0) & np.isfinite(depth) & np.isfinite(confidence)
+        if max_depth is not None:
+            valid &= gt < max_depth
+    index = np.flatnonzero(valid)
+    if len(index) > count:
+        index = np.sort(np.random.default_rng(0).choice(index, count, replace=False))
+    g = gt.reshape(-1)[index]
+    error = np.abs(fit.scale * depth.reshape(-1)[index] + fit.shift - g) / g
+    return np.stack([confidence.reshape(-1)[index], error], 1)
 
 
 def _score_poses(result: SequenceResult, sequence: EvalSequence, prediction: Prediction) -> None:

@@ -21,13 +21,15 @@ from d4rt.reconstruction import Reconstruction
 class Prediction:
     """A method's outputs for one sequence; None where the method does not predict that quantity.
 
-    depth: (T, H, W). cam_to_world: (T, 4, 4). registered: (T,) bool, frames that have a pose (None: all).
+    depth: (T, H, W); depth_confidence: (T, H, W), the method's confidence in it (higher: surer; None
+    when it gives none). cam_to_world: (T, 4, 4). registered: (T,) bool, frames that have a pose (None: all).
     tracks: (T, N, 3) in each frame's camera; track_visible: (T, N) bool. world_tracks: (T, N, 3) in
     the camera of frame 0. point_map: (T, H, W, 3) every pixel's point at its own time, in the camera
     of frame 0 (NaN where the method gives none). notes: what went wrong or was left out, in words.
     """
 
     depth: np.ndarray | None = None
+    depth_confidence: np.ndarray | None = None
     cam_to_world: np.ndarray | None = None
     registered: np.ndarray | None = None
     tracks: np.ndarray | None = None
@@ -57,7 +59,8 @@ class ReconstructionPredictor:
         rec = self.reconstruct(sequence)
         out = Prediction()
         if "depth" in tasks or "point_cloud" in tasks:
-            out.depth = rec.depth(resolution=sequence.image_size).depth
+            depth = rec.depth(resolution=sequence.image_size)
+            out.depth, out.depth_confidence = depth.depth, depth.confidence
         if "pose" in tasks:
             out.cam_to_world = rec.cameras().cam_to_world
         if sequence.tracks is not None and ({"tracks", "world_tracks"} & tasks):

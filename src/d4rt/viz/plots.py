@@ -90,3 +90,41 @@ def depth_figure(path: str | Path, rgb: np.ndarray, depth: np.ndarray, confidenc
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def evaluation_figure(path: str | Path, confidence_errors: dict[str, np.ndarray], abs_rel: dict[str, list[float]],
+                      sequences: list[str], alignment: str, bins: int = 10) -> Path:
+    """``d4rt eval``'s figure: left, each method's mean relative depth error by confidence decile (pixels of
+    every sequence pooled: a useful confidence falls from left to right); right, each method's AbsRel per
+    sequence.
+
+    confidence_errors: method -> (K, 2) [confidence, relative error] (methods without confidence left
+    out); abs_rel: method -> one AbsRel per sequence (None where missing); sequences: their names.
+    """
+    plt = _pyplot()
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.2), gridspec_kw={"width_ratios": [1, 1.6]})
+    for name, samples in confidence_errors.items():
+        if not len(samples):
+            continue
+        edges = np.quantile(samples[:, 0], np.linspace(0, 1, bins + 1))
+        which = np.clip(np.searchsorted(edges, samples[:, 0], side="right") - 1, 0, bins - 1)
+        means = [samples[which == b, 1].mean() if (which == b).any() else np.nan for b in range(bins)]
+        left.plot(np.arange(1, bins + 1), means, "o-", label=name)
+    left.set(title="depth error by confidence", xlabel=f"confidence decile (1: least sure, {bins}: surest)",
+             ylabel=f"mean |error| / true depth ({alignment})")
+    left.grid(alpha=0.3)
+    if confidence_errors:
+        left.legend(fontsize=8)
+    width = 0.8 / max(len(abs_rel), 1)
+    x = np.arange(len(sequences))
+    for i, (name, values) in enumerate(abs_rel.items()):
+        right.bar(x + i * width, [np.nan if v is None else v for v in values], width, label=name)
+    right.set(title=f"AbsRel per sequence ({alignment})", ylabel="AbsRel (lower is better)")
+    right.set_xticks(x + width * (len(abs_rel) - 1) / 2, sequences, rotation=90, fontsize=6)
+    right.legend(fontsize=8)
+    right.grid(alpha=0.3, axis="y")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
