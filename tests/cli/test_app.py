@@ -82,6 +82,10 @@ def test_a_corrupt_upload_gets_the_clis_one_line_error(served, tmp_path):
     assert "cannot decode video bad.mp4" in message and "\n" not in message and "request-" not in message
     with pytest.raises(Exception, match="upload a video or a zip of images"):
         Client(url, verbose=False).predict(None, False, 6, 1, FAST, "", api_name="/reconstruct")
+    big = tmp_path / "big.npy"  # over the 5 MB this app was started with
+    np.save(big, np.zeros((20, 100, 1000, 3), np.uint8))
+    with pytest.raises(Exception, match="exceeds the maximum file size"):
+        Client(url, verbose=False).predict(handle_file(str(big)), False, 6, 1, FAST, "", api_name="/reconstruct")
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="no Chromium on this machine")
