@@ -62,7 +62,9 @@ def occupancy_tracking(ask_tracks: Callable[[np.ndarray], dict], num_frames: int
         for key, value in out.items():
             parts.setdefault(key, []).append(value)
     bar.close()
-    result = {key: np.concatenate(value) for key, value in parts.items()}
+    result = {}
+    for key in list(parts):  # one key at a time, its pieces released as it is joined: memory ~1x, not 2x
+        result[key] = np.concatenate(parts.pop(key))
     result["sources"] = np.concatenate(sources) if sources else np.zeros((0, 3), dtype=np.int64)
     result["num_queries"] = int(len(result["sources"]) * num_frames)
     result["grid"] = grid

@@ -382,7 +382,7 @@ class Reconstruction:
         whole, tracks carried from window to window, so the grid spans every frame; the encoded windows are kept for the
         whole run (memory grows with the number of windows) rather than re-encoded for every batch.
         ``num_queries`` counts the tracking queries actually decoded (window alignment, shared with the
-        other recipes, is not counted).
+        other recipes, is not counted). The tracks are float32 (N tracks of T frames each add up).
         """
         h, w = self.output_size(resolution)
         t = self.num_frames
@@ -395,7 +395,9 @@ class Reconstruction:
             pixels = np.stack([src[:, 0], (src[:, 1] + 0.5) * self.width / w - 0.5,
                                (src[:, 2] + 0.5) * self.height / h - 0.5], 1).astype(np.float64)
             tr = self.tracks(pixels, frame="camera")
-            return {"points": tr.points, "uv": tr.uv, "visibility": tr.visibility, "confidence": tr.confidence}
+            # Kept as float32 (the model answers in float32; T * H * W tracks of float64 would double the peak).
+            return {"points": tr.points.astype(np.float32), "uv": tr.uv.astype(np.float32),
+                    "visibility": tr.visibility.astype(np.float32), "confidence": tr.confidence.astype(np.float32)}
 
         with keeping_windows(self.source, len(self.windows)):
             res = occupancy_tracking(ask, t, h, w, batch_size, visibility_threshold, progress=bool(self.progress))
