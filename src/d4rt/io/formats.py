@@ -40,9 +40,9 @@ FORMAT_NEEDS = {
     "dense-tracks": {"dense", "cameras"},
 }
 DEFAULT_FPS = 10.0  # for the videos and the viewer when the input has no clock
-# Points of the COLMAP model: each costs COLMAP_VIEWS queries, so this bounds both the file and the cost;
-# 3D Gaussian splatting starts well from a few tens of thousands.
-DEFAULT_MAX_POINTS = 50_000
+# Points of the COLMAP model: each costs COLMAP_VIEWS queries, so this bounds both the file and the cost
+# (20,000 x 8 = 160k queries, a fifth of a 48-frame 128x128 video's depth maps); --max-points raises it.
+DEFAULT_MAX_POINTS = 20_000
 # Frames each COLMAP point is queried in (its source frame among them), spread over its window: plenty for
 # bundle adjustment and splatting, at a sixth of the queries of tracking it through 48 frames.
 COLMAP_VIEWS = 8
