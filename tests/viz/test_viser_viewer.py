@@ -16,8 +16,6 @@ import pytest
 from PIL import Image
 
 from d4rt.cli import main
-from d4rt.io.exports import export_reconstruction
-from d4rt.synthetic import render_clip
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 # Software WebGL: a headless browser on a machine without a GPU.
@@ -33,10 +31,12 @@ def free_port() -> int:
 
 @pytest.fixture(scope="module")
 def output_folder(tmp_path_factory) -> Path:
-    """What d4rt reconstruct writes (the exact oracle answering: no model needed), frames included."""
-    clip = render_clip(3, 6, 48, 64, environment="room", num_objects=4, camera_motion="orbit", moving_fraction=0.5)
-    out = tmp_path_factory.mktemp("view") / "out"
-    export_reconstruction(clip.reconstruction(), out, ["npz", "colmap"], track_grid=6)
+    """The demo's synthetic output (every file d4rt reconstruct writes; the exact oracle answering, as the
+    demo does without a model, so no model is needed)."""
+    from d4rt.cli import demo
+
+    out = tmp_path_factory.mktemp("view") / "synthetic"
+    demo.run_synthetic(None, out)
     return out
 
 
@@ -45,8 +45,8 @@ def test_viewer_data_and_its_errors(output_folder, tmp_path):
     from d4rt.viz.viser_viewer import ViewerData, moving_tracks
 
     data = ViewerData.load(output_folder)
-    assert data.num_frames == 6 and data.images.shape[0] == 6 and max(data.images.shape[1:3]) == 160
-    assert len(data.points) == len(data.frames) == len(data.colors) and data.tracks.shape == (36, 6, 3)
+    assert data.num_frames == 24 and data.images.shape[0] == 24 and max(data.images.shape[1:3]) == 160
+    assert len(data.points) == len(data.frames) == len(data.colors) and data.tracks.shape == (256, 24, 3)
     still = np.zeros((1, 4, 3))
     walking = np.cumsum(np.full((1, 4, 3), 0.1), axis=1)
     assert list(moving_tracks(np.concatenate([still, walking]), extent=1.0)) == [False, True]
@@ -68,7 +68,7 @@ def test_cli_refuses_a_folder_without_outputs_in_one_line(tmp_path, capsys):
 
 @pytest.mark.skipif(CHROMIUM is None, reason="no Chromium on this machine")
 def test_chromium_draws_the_points_of_each_frame(output_folder, tmp_path):
-    """The page loads with no console errors, and moving the timeline redraws the scene."""
+    """The page loads with no console errors, and moving the timeline from frame 0 to 23 redraws the scene."""
     pytest.importorskip("viser")
     sync_playwright = pytest.importorskip("playwright.sync_api").sync_playwright
     from d4rt.viz.viser_viewer import serve
@@ -97,7 +97,7 @@ def test_chromium_draws_the_points_of_each_frame(output_folder, tmp_path):
                 return last
 
             first = settled_screenshot()
-            viewer.frame = 5
+            viewer.frame = 23
             last = settled_screenshot()
             if os.environ.get("D4RT_SCREENSHOT_DIR"):  # the README's screenshot is made here
                 Image.fromarray(last.astype(np.uint8)).save(Path(os.environ["D4RT_SCREENSHOT_DIR"]) / "viewer.png",
