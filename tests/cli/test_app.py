@@ -112,3 +112,16 @@ def test_the_result_page_shows_the_3d_view(served):
         browser.close()
     assert errors == []
     assert view.shape[0] > 200 and view.std(axis=(0, 1)).max() > 10  # points drawn, not an empty canvas
+
+
+def test_only_the_newest_request_folders_stay(tmp_path):
+    from d4rt.cli.app import prune_requests
+
+    for i in range(5):
+        folder = tmp_path / f"request-{i}"
+        folder.mkdir()
+        (folder / "d4rt-output.zip").write_bytes(b"x")
+        os.utime(folder, (1000 + i, 1000 + i))
+    (tmp_path / "other").mkdir()
+    prune_requests(tmp_path, keep=2)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["other", "request-3", "request-4"]

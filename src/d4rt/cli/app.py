@@ -4,8 +4,9 @@ interactive 3D view (scene.glb), the depth and tracks videos, the camera traject
 output folder as a zip.
 
 One model is loaded once; requests are queued and run one at a time; every request works in a folder
-of its own (nothing of one leaks into another's); uploads are size-limited; a bad upload is refused with
-the same one-line error as the CLI. Binds to 127.0.0.1 unless told otherwise.
+of its own (nothing of one leaks into another's), and only the newest KEEP_REQUESTS folders stay on disk;
+uploads are size-limited; a bad upload is refused with the same one-line error as the CLI. Binds to
+127.0.0.1 unless told otherwise.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ RESOLUTIONS = {"encoder (fastest: about the model's 64x64 pixels)": "encoder",
 UPLOAD_TYPES = [".mp4", ".mov", ".avi", ".webm", ".mkv", ".m4v", ".zip", ".npy", ".npz"]
 DEFAULT_MAX_UPLOAD_MB = 200
 OUTPUT_ZIP = "d4rt-output.zip"
+KEEP_REQUESTS = 16  # request folders kept on disk (gradio serves its own copies of the results)
 
 
 def register(subparsers) -> None:
@@ -74,6 +76,13 @@ def _unzip_images(archive: Path, target: Path) -> Path:
     except zipfile.BadZipFile as err:
         raise UserError(f"{archive.name} is not a readable zip file: {err}") from err
     return target
+
+
+def prune_requests(work_root: Path, keep: int = KEEP_REQUESTS) -> None:
+    """Delete all but the ``keep`` newest request folders, so a long-running app does not fill the disk."""
+    folders = sorted((p for p in work_root.glob("request-*") if p.is_dir()), key=lambda p: p.stat().st_mtime)
+    for old in folders[:max(0, len(folders) - keep)]:
+        shutil.rmtree(old, ignore_errors=True)
 
 
 def reconstruct_request(model, work_root: Path, upload: str | None, use_sample: bool, max_frames: int, stride: int,
@@ -155,6 +164,7 @@ def build_app(checkpoint: str | None = None, work_dir: str | None = None):
 
     def handle(upload, use_sample, max_frames, stride, resolution_label, intrinsics_text,
                progress=gr.Progress(track_tqdm=True)):
+        prune_requests(work_root, KEEP_REQUESTS - 1)  # room for this one
         try:
             r = reconstruct_request(model, work_root, upload, bool(use_sample), max_frames, stride, resolution_label,
                                     intrinsics_text or "")
