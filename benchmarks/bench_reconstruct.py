@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import subprocess
 import sys
@@ -38,13 +37,9 @@ COMPARED = ("depth", "confidence", "intrinsics", "video_intrinsics", "cam_to_wor
 
 
 def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return f"{line.split(':', 1)[1].strip()}, {os.cpu_count()} logical cores"
-    except OSError:
-        pass
-    return f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical cores"
+    from d4rt.devices import cpu_name as model_name
+
+    return f"{model_name()}, {os.cpu_count()} logical cores"
 
 
 def run_tree(tree: Path, video: Path, out: Path, checkpoint: Path, extra: list[str]) -> dict:

@@ -19,12 +19,12 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 from pathlib import Path
 
 import torch
 
+from d4rt.devices import cpu_name
 from d4rt.model import D4RT
 from d4rt.training.checkpoint import latest_checkpoint
 
@@ -37,15 +37,6 @@ def training_seconds(records: list[dict]) -> float:
             total += (record["step"] - previous) / record["throughput/clips_per_s"]
             previous = record["step"]
     return total
-
-
-def cpu_model() -> str:
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.is_file():
-        for line in cpuinfo.read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    return platform.processor() or platform.machine()
 
 
 def summarise(run: Path, log: Path | None = None) -> dict:
@@ -69,7 +60,7 @@ def summarise(run: Path, log: Path | None = None) -> dict:
         "training_seconds": training_seconds(records),
         "wall_seconds": (checkpoint / "trainer.json").stat().st_mtime - (run / "train_config.yaml").stat().st_mtime,
         "resumed": log is not None and "resumed from" in log.read_text(errors="replace"),
-        "hardware": {"cpu": cpu_model(), "logical_cpus": os.cpu_count(), "device": config["run"]["device"],
+        "hardware": {"cpu": cpu_name(), "logical_cpus": os.cpu_count(), "device": config["run"]["device"],
                      "torch": torch.__version__, "torch_threads": torch.get_num_threads()},
         "config": config,
     }

@@ -3,6 +3,7 @@ whether the device computes bfloat16 natively."""
 
 from __future__ import annotations
 
+import platform
 from pathlib import Path
 
 import torch
@@ -30,6 +31,18 @@ def resolve_device(name: str, what: str = "device") -> torch.device:
     elif device.type == "mps" and not torch.backends.mps.is_available():
         raise UserError(f"{what} {name!r} asked for but MPS is not available on this machine")
     return device
+
+
+def cpu_name() -> str:
+    """The CPU's model name (Linux /proc/cpuinfo), else what the platform module knows: benchmark figures
+    name the CPU they were measured on."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine() or "unknown CPU"
 
 
 # CPU flags of native bfloat16 arithmetic (Linux /proc/cpuinfo names): Intel AMX tiles, AVX-512 BF16.

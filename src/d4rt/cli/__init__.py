@@ -55,6 +55,18 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def add_server_arguments(parser, default_port: int) -> None:
+    """--host (loopback by default) and --port of the commands that serve a page (view, app)."""
+    parser.add_argument("--host", default="127.0.0.1",
+                        help="address to serve on (default: 127.0.0.1, this machine only; 0.0.0.0 serves the network)")
+    parser.add_argument("--port", type=int, default=default_port, help=f"port to serve on (default: {default_port})")
+
+
+def check_port(port: int) -> None:
+    if not 0 < port < 65536:
+        raise UserError(f"--port must be in 1..65535, got {port}")
+
+
 def parse_size(text: str, option: str) -> tuple[int, int]:
     """The command line's one size syntax: 'WIDTHxHEIGHT' (e.g. 640x480) or 'N' (N x N) -> (height, width);
     a bad value is a UserError naming ``option``."""

@@ -17,7 +17,7 @@ import zipfile
 from contextlib import nullcontext
 from pathlib import Path
 
-from d4rt.cli import COMMANDS
+from d4rt.cli import COMMANDS, add_server_arguments, check_port
 
 SAMPLE = "TUM RGB-D fr3 office (17 real frames, bundled)"
 RESOLUTIONS = {"encoder (fastest: about the model's 64x64 pixels)": "encoder",
@@ -34,9 +34,7 @@ def register(subparsers) -> None:
         "app", help=COMMANDS["app"],
         description="Serve a local web app (gradio) that reconstructs an uploaded video or image zip with the bundled "
                     "model and shows the results. Needs pip install 'd4rt[app]'.")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="address to serve on (default: 127.0.0.1, this machine only; 0.0.0.0 serves the network)")
-    p.add_argument("--port", type=int, default=7860, help="port to serve on (default: 7860)")
+    add_server_arguments(p, 7860)
     p.add_argument("--checkpoint", metavar="DIR", default=None, help="model directory (default: the bundled model)")
     p.add_argument("--max-upload-mb", type=int, default=DEFAULT_MAX_UPLOAD_MB,
                    help=f"largest upload accepted, in MB (default: {DEFAULT_MAX_UPLOAD_MB})")
@@ -48,8 +46,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from d4rt.errors import UserError
 
-    if not 0 < args.port < 65536:
-        raise UserError(f"--port must be in 1..65535, got {args.port}")
+    check_port(args.port)
     if args.max_upload_mb < 1:
         raise UserError(f"--max-upload-mb must be >= 1, got {args.max_upload_mb}")
     app = build_app(args.checkpoint, args.work_dir)
@@ -89,6 +86,7 @@ def reconstruct_request(model, work_root: Path, upload: str | None, use_sample: 
                         resolution_label: str, intrinsics_text: str) -> dict:
     """One request in a folder of its own under ``work_root``: the input read as the CLI reads it, every
     output written, the trajectory plotted and everything zipped. Returns the paths the page shows."""
+    import numpy as np
     import torch
 
     from d4rt.cli.demo import tum_frames_dir
@@ -133,8 +131,6 @@ def reconstruct_request(model, work_root: Path, upload: str | None, use_sample: 
                                                  "html"], resolution=resolution, intrinsics=intrinsics,
                               timestamps=frames.timestamps if frames.has_clock else None, fps=frames.fps,
                               progress=True)
-    import numpy as np
-
     with np.load(out / "reconstruction.npz") as saved:
         poses = saved["cam_to_world"]
     plot = trajectory_figure(out / "trajectory.png", poses) if plots_available() else None

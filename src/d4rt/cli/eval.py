@@ -71,9 +71,8 @@ def write_figure(path, benchmark, results) -> None:
         print(f"figure skipped ({path.name}): it needs matplotlib, pip install 'd4rt[viewer]'")
         return
     align = benchmark.depth_alignments[0]
-    confidence = {r.method: np.concatenate([row.confidence_errors for row in r.rows])
-                  for r in results if any(row.confidence_errors is not None for row in r.rows)
-                  and all(row.confidence_errors is not None for row in r.rows)}
+    confidence = {r.method: np.concatenate([row.confidence_errors for row in r.rows]) for r in results
+                  if r.rows and all(row.confidence_errors is not None for row in r.rows)}
     abs_rel = {r.method: [row.metrics.get(f"abs_rel[{align}]") for row in r.rows] for r in results
                if any(row.metrics.get(f"abs_rel[{align}]") is not None for row in r.rows)}
     names = [row.name for row in results[0].rows]

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import platform
 import time
 
 import torch
 
+from d4rt.devices import cpu_name
 from d4rt.speed.decoder import bench_decoder
 from d4rt.speed.dense import bench_dense
 from d4rt.speed.encoder import bench_encoder
@@ -21,7 +21,7 @@ PARTS = ("encoder", "decoder", "pose", "tracks", "dense")
 def device_name(device: torch.device) -> str:
     if device.type == "cuda":
         return torch.cuda.get_device_name(device)
-    return platform.processor() or platform.machine() or "cpu"
+    return cpu_name()
 
 
 def run_benchmark(options: BenchOptions, log=print) -> dict:

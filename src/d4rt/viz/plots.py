@@ -30,6 +30,14 @@ def _pyplot():
     return plt
 
 
+def _save(plt, fig, path: str | Path) -> Path:
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def trajectory_figure(path: str | Path, cam_to_world: np.ndarray, reference: np.ndarray | None = None,
                       title: str = "camera trajectory") -> Path:
     """Camera centres of ``cam_to_world (T, 4, 4)`` from above and from the side, with ``reference``
@@ -50,11 +58,7 @@ def trajectory_figure(path: str | Path, cam_to_world: np.ndarray, reference: np.
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8, loc="best")
     fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def depth_figure(path: str | Path, rgb: np.ndarray, depth: np.ndarray, confidence: np.ndarray,
@@ -85,11 +89,7 @@ def depth_figure(path: str | Path, rgb: np.ndarray, depth: np.ndarray, confidenc
         ax.set_yticks([])
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)
 
 
 def evaluation_figure(path: str | Path, confidence_errors: dict[str, np.ndarray], abs_rel: dict[str, list[float]],
@@ -123,8 +123,4 @@ def evaluation_figure(path: str | Path, confidence_errors: dict[str, np.ndarray]
     right.set_xticks(x + width * (len(abs_rel) - 1) / 2, sequences, rotation=90, fontsize=6)
     right.legend(fontsize=8)
     right.grid(alpha=0.3, axis="y")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path)

@@ -149,7 +149,7 @@ class Viewer:
         for control in (self.accumulate, self.show_tracks, self.trail, self.show_cameras):
             control.on_update(lambda _: self._show(int(self.timeline.value)))
         for control in (self.min_confidence, self.point_size):
-            control.on_update(lambda _: self._rebuild_clouds() or self._show(int(self.timeline.value)))
+            control.on_update(lambda _: self._restyle())
 
     # ------------------------------------------------------------------------------------------ scene
     def _build_static_scene(self) -> None:
@@ -185,6 +185,10 @@ class Viewer:
                 self._clouds.append(self.server.scene.add_point_cloud(
                     f"/points/{k:05d}", d.points[index].astype(np.float32), d.colors[index],
                     point_size=float(self.point_size.value) * self.extent, point_shape="rounded", visible=False))
+
+    def _restyle(self) -> None:
+        self._rebuild_clouds()
+        self._show(int(self.timeline.value))
 
     def _show(self, frame: int) -> None:
         """Everything of time ``frame``: its points (or all up to it), frusta, track trails."""
@@ -227,8 +231,7 @@ class Viewer:
 
     @frame.setter
     def frame(self, value: int) -> None:
-        self.timeline.value = int(value)  # its on_update draws the frame
-        self._show(int(value))
+        self.timeline.value = int(value)  # viser calls its on_update (which draws the frame) when it changes
 
     def _play_loop(self) -> None:
         while not self._stop.is_set():
