@@ -341,3 +341,57 @@ def test_binary_layout_of_the_colmap_files(saved):
         pairs = np.frombuffer(data, dtype="<i4", count=2 * track_length, offset=offset - 8 * track_length)
         assert set(pairs[0::2]) <= set(range(1, 6))  # image ids
     assert offset == len(data) and count > 0
+
+
+@pytest.mark.parametrize("points_from", ["depth", "queries"])
+def test_outputs_spooled_to_disk_equal_the_in_memory_ones(tmp_path, monkeypatch, points_from):
+    """compute_outputs(spool=DIR) (what export_reconstruction and the CLI use: depth maps and point cloud
+    written to disk a window and a block of frames at a time, the frames read from disk) gives the same
+    arrays and files as the in-memory path, over several windows and several point blocks."""
+    from d4rt.io.disk_array import DiskArray
+    from d4rt.reconstruction import Reconstruction
+
+    long_clip = render_clip(5, 10, 24, 32, environment="room", num_objects=3, camera_motion="orbit")
+    frames_on_disk = DiskArray.create(tmp_path / "frames.raw", long_clip.rgb.shape, np.uint8)
+    frames_on_disk[0:10] = long_clip.rgb
+    monkeypatch.setattr(output_plan, "POINT_BLOCK_PIXELS", 3 * 24 * 32)  # 3 frames a block
+    options = dict(track_grid=3, max_points=150, points_from=points_from, min_confidence=0.5)
+    names = ["npz", "depth", "ply", "colmap", "tum", "html"]
+    in_memory = output_plan.compute_outputs(long_clip.reconstruction(window=4, overlap=1), names, **options)
+    spool = tmp_path / "spool"
+    spool.mkdir()
+    rec = Reconstruction.from_clip(type("C", (), {"oracle": long_clip.oracle, "rgb": frames_on_disk})(), window=4,
+                                   overlap=1)
+    on_disk = output_plan.compute_outputs(rec, names, spool=spool, **options)
+    assert isinstance(on_disk.depth, DiskArray) and isinstance(on_disk.points, DiskArray)
+    for name in ("depth", "confidence", "points", "point_colors", "point_confidence", "point_frames", "point_pixels",
+                 "video_intrinsics", "cam_to_world", "tracks", "point_offsets"):
+        mine, theirs = np.asarray(getattr(on_disk, name)), np.asarray(getattr(in_memory, name))
+        assert mine.dtype == theirs.dtype, name
+        np.testing.assert_array_equal(mine, theirs, err_msg=name)
+    np.testing.assert_array_equal(in_memory.point_offsets, np.searchsorted(in_memory.point_frames, np.arange(11)))
+    for key in in_memory.colmap:
+        np.testing.assert_array_equal(on_disk.colmap[key], in_memory.colmap[key], err_msg=key)
+    writers.write_outputs(in_memory, tmp_path / "a" / "out", names)  # one folder name: the page's title
+    writers.write_outputs(on_disk, tmp_path / "b" / "out", names)
+    for relative in ["points.ply", "trajectory_tum.txt", "viewer.html", "colmap/sparse/0/points3D.bin",
+                     *[f"depth/{k:06d}.png" for k in range(10)], *[f"colmap/images/{k:06d}.png" for k in range(10)]]:
+        assert (tmp_path / "a/out" / relative).read_bytes() == (tmp_path / "b/out" / relative).read_bytes(), relative
+    with np.load(tmp_path / "a/out/reconstruction.npz") as a, np.load(tmp_path / "b/out/reconstruction.npz") as b:
+        assert sorted(a.files) == sorted(b.files)
+        for key in a.files:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+def test_spread_subset_reduces_a_cloud_block_by_block():
+    """The COLMAP points of a cloud too large for one block: at most max_points, spread over the whole
+    cloud (every block's region keeps points), the best-scored of each voxel."""
+    rng = np.random.default_rng(0)
+    points = np.concatenate([rng.uniform(0, 1, (3000, 3)) + [2.0 * k, 0, 0] for k in range(4)])
+    score = rng.uniform(0, 1, len(points))
+    pick = output_plan.spread_subset(points, score, 200, block=2500)
+    assert len(pick) <= 200 and len(np.unique(pick)) == len(pick) and np.all(np.diff(pick) > 0)
+    counts = np.bincount((points[pick, 0] // 2).astype(int), minlength=4)
+    assert counts.min() >= 35, counts  # each unit cube keeps its share (about 50)
+    whole = output_plan.spread_subset(points, score, 200)  # in one block
+    assert len(whole) <= 200 and len(pick) >= 0.8 * len(whole)

@@ -106,3 +106,31 @@ def test_mixed_sizes_corrupt_images_and_too_few_frames(tmp_path, frames):
     for bad in (dict(start=-1), dict(start=3, end=3), dict(stride=0), dict(max_frames=0)):
         with pytest.raises(UserError):
             FrameRange(**bad)
+
+
+def test_spooled_frames_equal_the_loaded_ones_for_every_source(tmp_path, frames):
+    """load_frames(..., spool=DIR): the same frames, indices and times, held on disk (a DiskArray read a
+    few frames at a time) for every kind of source and selection; a consecutive uint8 .npy is read in place."""
+    from d4rt.io.disk_array import DiskArray
+
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for i, frame in enumerate(frames):
+        Image.fromarray(frame).save(folder / f"{i}.png")
+    np.save(tmp_path / "clip.npy", frames)
+    np.save(tmp_path / "float.npy", frames.astype(np.float32) / 255)
+    np.savez_compressed(tmp_path / "clip.npz", rgb=frames)
+    sources = [write_video(tmp_path / "clip.mp4", frames, fps=12), folder, tmp_path / "clip.npy",
+               tmp_path / "float.npy", tmp_path / "clip.npz"]
+    for source in sources:
+        for selection in (FrameRange(), FrameRange(start=2, end=11, stride=3), FrameRange(start=1, max_frames=4)):
+            spool = tmp_path / f"spool-{source.name}-{selection.start}-{selection.stride}"
+            spool.mkdir()
+            eager, lazy = load_frames(source, selection), load_frames(source, selection, spool=spool)
+            assert isinstance(lazy.rgb, DiskArray), source
+            np.testing.assert_array_equal(np.asarray(lazy.rgb), eager.rgb, err_msg=str(source))
+            np.testing.assert_array_equal(lazy.indices, eager.indices)
+            np.testing.assert_array_equal(lazy.timestamps, eager.timestamps)
+            assert lazy.fps == eager.fps
+            in_place = source.name == "clip.npy" and selection.stride == 1
+            assert (lazy.rgb.path == source) == in_place and (not any(spool.iterdir())) == in_place

@@ -238,13 +238,15 @@ def run(args) -> int:
     out_dir = check_output_dir(args.out, args.overwrite)
 
     from d4rt.devices import native_bf16, resolve_device
+    from d4rt.io.exports import spool_folder
     from d4rt.io.frames import load_frames
 
     device = resolve_device(args.device, "--device")
     bf16 = args.dtype == "bf16" or (args.dtype == "auto" and native_bf16(device))
-    frames = load_frames(args.input[0], selection, progress=True)
-    model = load_model(args.checkpoint, device)
-    reconstruct_frames(model, frames, out_dir, args, formats, save_options, bf16, overwrite=args.overwrite)
+    with spool_folder(out_dir) as spool:  # the frames wait on disk and are read window by window
+        frames = load_frames(args.input[0], selection, progress=True, spool=spool)
+        model = load_model(args.checkpoint, device)
+        reconstruct_frames(model, frames, out_dir, args, formats, save_options, bf16, overwrite=args.overwrite)
     return 0
 
 
@@ -255,6 +257,7 @@ def run_many(args, selection, formats, save_options) -> int:
 
     from d4rt.cli.collection import expand_inputs, run_collection
     from d4rt.devices import native_bf16
+    from d4rt.io.exports import spool_folder
     from d4rt.io.frames import load_frames
     from d4rt.training.distributed import DistributedContext
 
@@ -268,8 +271,9 @@ def run_many(args, selection, formats, save_options) -> int:
         model = load_model(args.checkpoint, context.device)
 
         def reconstruct_one(source: Path, target: Path) -> int:
-            frames = load_frames(source, selection, progress=True)
-            reconstruct_frames(model, frames, target, args, formats, save_options, bf16, overwrite=args.overwrite)
+            with spool_folder(target) as spool:
+                frames = load_frames(source, selection, progress=True, spool=spool)
+                reconstruct_frames(model, frames, target, args, formats, save_options, bf16, overwrite=args.overwrite)
             return len(frames.rgb)
 
         if context.is_main:
@@ -333,6 +337,7 @@ def reconstruct_shots(model, frames, shots, out_dir, args, formats, save_options
     """Each shot into its own folder (shot_000, ...) and a summary, shots.json: the cuts, and per shot its
     frames (of the frames used, and of the source) and folder, or why it was skipped. The whole folder
     appears at once when every shot is written (the exports' staging)."""
+    from d4rt.io.disk_array import row_range
     from d4rt.io.staging import staged_folder
 
     rows = []
@@ -344,7 +349,7 @@ def reconstruct_shots(model, frames, shots, out_dir, args, formats, save_options
             else:
                 print(f"shot {k}: frames {a}..{b - 1}")
                 stamps = frames.timestamps[a:b] if frames.has_clock else None
-                reconstruct_clip(model, frames.rgb[a:b], stamps, stage / f"shot_{k:03d}", args, formats, save_options,
+                reconstruct_clip(model, row_range(frames.rgb, a, b), stamps, stage / f"shot_{k:03d}", args, formats, save_options,
                                  overwrite=False)
                 row["folder"] = f"shot_{k:03d}"
             rows.append(row)

@@ -9,25 +9,35 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from d4rt.io.disk_array import frame_blocks
+
 MAX_VALUE = 65535
 SCALE_FILE = "depth_scale.json"
 
 
-def write_depth_pngs(directory: str | Path, depth: np.ndarray, valid: np.ndarray) -> float:
+def write_depth_pngs(directory: str | Path, depth, valid) -> float:
     """Write ``directory/000000.png`` ... (uint16) and ``directory/depth_scale.json``.
 
-    depth: (T, H, W) z-depth; valid: (T, H, W) bool (False, or non-finite or non-positive depth, is
-    written as 0). The scale maps the largest valid depth to 65535, so the quantisation step is
-    max_depth / 65535. Returns the scale: depth = value / depth_scale.
+    depth: (T, H, W) z-depth (numpy or DiskArray); valid: (T, H, W) bool, or a function (start, stop) ->
+    the rows [start, stop) of it (False, or non-finite or non-positive depth, is written as 0). The scale
+    maps the largest valid depth to 65535, so the quantisation step is max_depth / 65535. Returns the
+    scale: depth = value / depth_scale. Frames are read a block at a time (two passes: the scale first).
     """
     directory = Path(directory)
     directory.mkdir()
-    valid = valid & np.isfinite(depth) & (depth > 0)
-    largest = float(depth[valid].max()) if valid.any() else 1.0
+    rows_of = valid if callable(valid) else (lambda a, b: valid[a:b])
+
+    def blocks():
+        for a, b in frame_blocks(depth):
+            d = depth[a:b]
+            yield a, d, rows_of(a, b) & np.isfinite(d) & (d > 0)
+
+    largest = max((float(d[ok].max()) for _, d, ok in blocks() if ok.any()), default=1.0)
     scale = MAX_VALUE / largest
-    values = np.where(valid, np.round(np.where(valid, depth, 0) * scale), 0).astype(np.uint16)
-    for t, frame in enumerate(values):
-        Image.fromarray(frame).save(directory / f"{t:06d}.png")
+    for a, d, ok in blocks():
+        values = np.where(ok, np.round(np.where(ok, d, 0) * scale), 0).astype(np.uint16)
+        for k, frame in enumerate(values):
+            Image.fromarray(frame).save(directory / f"{a + k:06d}.png")
     (directory / SCALE_FILE).write_text(json.dumps({
         "depth_scale": scale,
         "meaning": "depth = png_value / depth_scale, in the reconstruction's units (z in the camera "

@@ -8,6 +8,8 @@ then each format is written from the same arrays (:func:`d4rt.io.writers.write_o
 
 from __future__ import annotations
 
+import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 from d4rt.io.formats import check_output_dir, parse_formats
@@ -25,5 +27,16 @@ def export_reconstruction(rec, directory: str | Path, formats="all", *, overwrit
     written."""
     names = parse_formats(formats)
     directory = check_output_dir(directory, overwrite)
-    outputs = compute_outputs(rec, names, progress=progress, **options)
-    return write_outputs(outputs, directory, names, overwrite=overwrite, progress=progress)
+    with spool_folder(directory) as spool:  # the arrays that grow with the video wait on disk, not in memory
+        outputs = compute_outputs(rec, names, progress=progress, spool=spool, **options)
+        return write_outputs(outputs, directory, names, overwrite=overwrite, progress=progress)
+
+
+@contextmanager
+def spool_folder(directory: str | Path):
+    """A hidden temporary folder beside ``directory`` (where the outputs' disk space is; the system's
+    temporary folder may be a RAM disk), removed afterwards, for arrays too large to hold in memory."""
+    parent = Path(directory).absolute().parent
+    with tempfile.TemporaryDirectory(prefix=f".{Path(directory).name}.spool-",
+                                     dir=parent if parent.is_dir() else None) as spool:
+        yield Path(spool)

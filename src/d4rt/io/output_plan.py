@@ -5,6 +5,7 @@ the result is a :class:`d4rt.io.outputs.ReconstructionOutputs` that every writer
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -14,6 +15,7 @@ from d4rt.geometry.transforms import apply_transform
 from d4rt.geometry.view import View
 from d4rt.geometry.voxel import voxel_subsample
 from d4rt.io.colmap_export import multiview_points
+from d4rt.io.disk_array import DiskArray
 from d4rt.io.formats import CAMERA_CHOICES, COLMAP_VIEWS, DEFAULT_FPS, DEFAULT_MAX_POINTS, FORMAT_NEEDS, POINT_SOURCES, ZOOM_SPREAD
 from d4rt.io.outputs import ReconstructionOutputs
 from d4rt.progress import progress_bar
@@ -26,7 +28,7 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
                     point_stride: int | None = None, track_grid: int = 16, track_frame: int = 0,
                     dense_resolution=None, max_points: int = DEFAULT_MAX_POINTS, points_from: str = "depth",
                     timestamps=None,
-                    fps: float | None = None, progress: bool = False) -> ReconstructionOutputs:
+                    fps: float | None = None, progress: bool = False, spool=None) -> ReconstructionOutputs:
     """Decode what ``formats`` need from a :class:`d4rt.reconstruction.Reconstruction`.
 
     resolution: depth maps at None (the input's size, continuous queries), "encoder" or (H, W).
@@ -51,6 +53,10 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     frames of its window and kept where seen in 2 or more (:func:`d4rt.io.colmap_export.multiview_points`).
     timestamps: (T,) seconds (default: frame numbers);
     fps: for the videos and the viewer (default: from the timestamps, else 10).
+    spool: a folder for the arrays that grow with the video (depth maps, confidences, point cloud): they
+    are then :class:`d4rt.io.disk_array.DiskArray` files there, written a window or a block of frames at
+    a time, so memory does not grow with the video's length (None: numpy arrays in memory). The folder
+    must outlive the outputs.
     """
     t, h, w = rec.video.shape[:3]
     needs = set().union(*(FORMAT_NEEDS[f] for f in formats))
@@ -91,24 +97,18 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
                                square_pixels=square_pixels)
             out.video_intrinsics, out.cam_to_world = cams.intrinsics, cams.cam_to_world
         elif stage == "depth":
-            depth = rec.depth(resolution)
-            out.depth, out.confidence = depth.depth, depth.confidence
-            _check_something_left(out.confidence, min_confidence, "depth pixel")
+            out.depth = _new_array(spool, "depth", (t, out_h, out_w), np.float32)
+            out.confidence = _new_array(spool, "confidence", (t, out_h, out_w), np.float32)
+            found = ConfidenceRange()
+            for frames, part in rec.depth_by_window(resolution):  # a window at a time: bounded memory
+                rows = slice(int(frames[0]), int(frames[-1]) + 1)  # a window owns consecutive frames
+                out.depth[rows], out.confidence[rows] = part.depth, part.confidence
+                found.add(part.confidence)
+            found.check(min_confidence, "depth pixel")
             resize = View((h, w), (0, 0, w, h), (out_h, out_w), tuple(range(t)))
             out.intrinsics = resize.intrinsics(out.video_intrinsics)
         elif stage == "points":
-            if points_from == "depth":  # no query: the depth maps and cameras already decoded
-                stride = max(1, round(point_stride * min(out_h / h, out_w / w))) if point_stride else 1
-                cloud = point_cloud_from_depth(out.depth, out.confidence, out.intrinsics, out.cam_to_world, rec.video,
-                                               stride)
-            else:
-                stride = point_stride or max(1, int(min(h / out_h, w / out_w)))
-                cloud = rec.point_cloud(stride=stride)
-            _check_something_left(cloud.confidence, min_confidence, "point")
-            if min_confidence is not None:
-                cloud = cloud.filtered(cloud.confidence >= min_confidence)
-            out.points, out.point_colors, out.point_confidence = cloud.points, cloud.colors, cloud.confidence
-            out.point_frames, out.point_pixels = cloud.frames, cloud.pixels
+            _point_cloud(rec, out, points_from, point_stride, min_confidence, spool)
         elif stage == "tracks":
             xy = uv_to_pixel(cell_centres_uv(track_grid), h, w)
             out.track_queries = np.concatenate([np.full((len(xy), 1), float(track_frame)), xy], 1)
@@ -138,20 +138,112 @@ def choose_camera_model(rec, square_pixels: bool = True, spread: float = ZOOM_SP
     return "per-frame"
 
 
-def _check_something_left(confidence: np.ndarray, min_confidence: float | None, what: str) -> None:
-    """An empty output is an error, not an empty file: say what range the confidences have."""
-    if min_confidence is None or not confidence.size:
-        return
-    finite = confidence[np.isfinite(confidence)]
-    if not (finite >= min_confidence).any():
-        if not finite.size:
+class ConfidenceRange:
+    """The range of the finite confidences seen, block by block, so that an empty output is an error that
+    says what range the confidences have, not an empty file."""
+
+    def __init__(self):
+        self.low, self.high, self.count = np.inf, -np.inf, 0
+
+    def add(self, confidence: np.ndarray) -> None:
+        self.count += confidence.size
+        finite = confidence[np.isfinite(confidence)]
+        if finite.size:
+            self.low, self.high = min(self.low, float(finite.min())), max(self.high, float(finite.max()))
+
+    def check(self, min_confidence: float | None, what: str) -> None:
+        if min_confidence is None or not self.count or self.high >= min_confidence:
+            return
+        if not np.isfinite(self.high):
             found = "all non-finite"
-        elif finite.min() == finite.max():
-            found = f"all {finite.min():.3g}"
+        elif self.low == self.high:
+            found = f"all {self.low:.3g}"
         else:
-            found = f"between {finite.min():.3g} and {finite.max():.3g}"
+            found = f"between {self.low:.3g} and {self.high:.3g}"
         raise UserError(f"no {what} has confidence >= {min_confidence:g} (this reconstruction's confidences are "
                         f"{found}); lower --min-confidence")
+
+
+# A long video's point cloud is made, filtered and stored this many frames' worth of pixels at a time.
+POINT_BLOCK_PIXELS = 1_000_000
+POINT_FIELDS = {"points": ((3,), np.float32), "point_colors": ((3,), np.uint8), "point_confidence": ((), np.float32),
+                "point_frames": ((), np.int64), "point_pixels": ((2,), np.int64)}
+
+
+def _point_cloud(rec, out: ReconstructionOutputs, points_from: str, point_stride, min_confidence, spool) -> None:
+    """The point cloud, a block of frames at a time, into ``out.points`` ... (and ``out.point_offsets``)."""
+    t, h, w = rec.video.shape[:3]
+    out_h, out_w = out.depth.shape[1:] if out.depth is not None else (h, w)
+    if points_from == "depth":  # no query: the depth maps and cameras already decoded
+        stride = max(1, round(point_stride * min(out_h / h, out_w / w))) if point_stride else 1
+    else:
+        stride = point_stride or max(1, int(min(h / out_h, w / out_w)))
+    columns = {name: _growing(spool, name, shape, dtype) for name, (shape, dtype) in POINT_FIELDS.items()}
+    counts = np.zeros(t, dtype=np.int64)
+    found = ConfidenceRange()
+    per_frame = -(-(out_h if points_from == "depth" else h) // stride) * -(-(out_w if points_from == "depth" else w) // stride)
+    for a, b in _blocks(t, max(1, POINT_BLOCK_PIXELS // per_frame)):
+        if points_from == "depth":
+            cloud = point_cloud_from_depth(out.depth[a:b], out.confidence[a:b], out.intrinsics[a:b],
+                                           out.cam_to_world[a:b], rec.video[a:b], stride)
+            cloud.frames = cloud.frames + a
+        else:
+            cloud = rec.point_cloud(stride=stride, frames=np.arange(a, b))
+        found.add(cloud.confidence)
+        if min_confidence is not None:
+            cloud = cloud.filtered(cloud.confidence >= min_confidence)
+        counts += np.bincount(cloud.frames, minlength=t)
+        for name, values in zip(POINT_FIELDS, (cloud.points, cloud.colors, cloud.confidence, cloud.frames,
+                                               cloud.pixels)):
+            columns[name].append(values)
+    found.check(min_confidence, "point")
+    for name, column in columns.items():
+        setattr(out, name, column.finish())
+    out.point_offsets = np.concatenate([[0], np.cumsum(counts)])
+
+
+def _blocks(n: int, size: int):
+    for a in range(0, n, size):
+        yield a, min(a + size, n)
+
+
+def _new_array(spool, name: str, shape: tuple, dtype):
+    """A zero array in memory, or in a file of the spool folder (:class:`d4rt.io.disk_array.DiskArray`)."""
+    return np.zeros(shape, dtype) if spool is None else DiskArray.create(Path(spool) / f"{name}.raw", shape, dtype)
+
+
+def _growing(spool, name: str, row_shape: tuple, dtype):
+    return _Rows(row_shape, dtype) if spool is None else _DiskRows(Path(spool) / f"{name}.raw", row_shape, dtype)
+
+
+class _Rows:
+    """Rows gathered in memory, one array at the end (of the first block's dtype; ``dtype`` if none came)."""
+
+    def __init__(self, row_shape, dtype):
+        self.parts, self.row_shape, self.dtype = [], row_shape, dtype
+
+    def append(self, rows) -> None:
+        self.parts.append(np.asarray(rows).reshape(-1, *self.row_shape))
+
+    def finish(self) -> np.ndarray:
+        return np.concatenate(self.parts) if self.parts else np.zeros((0, *self.row_shape), self.dtype)
+
+
+class _DiskRows(_Rows):
+    """Rows appended to a file as they come (a DiskArray at the end)."""
+
+    def __init__(self, path, row_shape, dtype):
+        super().__init__(row_shape, dtype)
+        self.path, self.array = path, None
+
+    def append(self, rows) -> None:
+        rows = np.asarray(rows).reshape(-1, *self.row_shape)
+        if self.array is None:
+            self.array = DiskArray.growable(self.path, self.row_shape, rows.dtype)
+        self.array.append(rows)
+
+    def finish(self):
+        return self.array if self.array is not None else super().finish()
 
 
 def _colmap_points(rec, out: ReconstructionOutputs, max_points: int) -> dict:
@@ -161,7 +253,7 @@ def _colmap_points(rec, out: ReconstructionOutputs, max_points: int) -> dict:
         return multiview_points(np.zeros((0, rec.num_frames, 3)), np.zeros((0, rec.num_frames, 2)),
                                 np.zeros((0, rec.num_frames)), np.zeros(0, dtype=np.int64), out.video_intrinsics,
                                 out.cam_to_world, rec.height, rec.width) | {"colors": np.zeros((0, 3), np.uint8)}
-    pick = voxel_subsample(out.points, out.point_confidence, max_points)
+    pick = spread_subset(out.points, out.point_confidence, max_points)
     sources = out.point_frames[pick]
     starts = np.concatenate([sources[:, None].astype(np.float64), out.point_pixels[pick].astype(np.float64)], 1)
     targets = observation_frames(rec.windows, sources, COLMAP_VIEWS)
@@ -173,6 +265,19 @@ def _colmap_points(rec, out: ReconstructionOutputs, max_points: int) -> dict:
               f"were seen consistently (reprojecting within {0.01 * max(rec.height, rec.width):.1f} px) in 2 or more: "
               "the COLMAP model keeps only those (the whole cloud is in points.ply)", file=sys.stderr)
     return found | {"colors": out.point_colors[pick][found["index"]]}
+
+
+def spread_subset(points, score, max_points: int, block: int = POINT_BLOCK_PIXELS) -> np.ndarray:
+    """Indices of at most ``max_points`` points spread evenly over the scene, the best-scored per voxel
+    (:func:`d4rt.geometry.voxel.voxel_subsample`), for clouds held in memory or on disk: a cloud larger than
+    ``block`` is reduced a block at a time, the winners of each block competing again with the next."""
+    if len(points) <= block:
+        return voxel_subsample(np.asarray(points), np.asarray(score), max_points)
+    kept = np.zeros(0, dtype=np.int64)
+    for a, b in _blocks(len(points), block):
+        candidates = np.sort(np.concatenate([kept, a + voxel_subsample(points[a:b], score[a:b], max_points)]))
+        kept = candidates[voxel_subsample(points[candidates], score[candidates], max_points)]
+    return kept
 
 
 def observation_frames(windows, sources: np.ndarray, views: int) -> np.ndarray:

@@ -12,6 +12,10 @@ import numpy as np
 class ReconstructionOutputs:
     """Every array the exports write (the contents of ``reconstruction.npz``); None where not computed.
 
+    The arrays that grow with the video (rgb, depth, confidence and the point cloud) may be
+    :class:`d4rt.io.disk_array.DiskArray` s (``compute_outputs(..., spool=DIR)``): the writers read them a
+    block of frames at a time.
+
     Input: rgb (T, H, W, 3) uint8; timestamps (T,) seconds (or frame numbers); fps.
     Depth at the output resolution (h, w): depth (T, h, w) z-depth (all of it: the confidence threshold
     applies to the PNGs and the video), confidence (T, h, w), intrinsics (T, 3, 3) in pixels of the
@@ -45,6 +49,7 @@ class ReconstructionOutputs:
     track_visibility: np.ndarray | None = None
     track_confidence: np.ndarray | None = None
     track_uv: np.ndarray | None = None
+    point_offsets: np.ndarray | None = None  # (T + 1,): frame k's points are [offsets[k], offsets[k + 1]) (frame order)
     dense: dict | None = None  # the arrays of dense_tracks.npz (written by that format alone)
     colmap: dict | None = None  # the multi-view points of the COLMAP model (io.colmap_export.multiview_points, colors)
 
@@ -52,9 +57,11 @@ class ReconstructionOutputs:
     def num_frames(self) -> int:
         return self.rgb.shape[0]
 
-    def depth_valid(self) -> np.ndarray:
-        """(T, h, w) bool: finite positive depth at or above the confidence threshold."""
-        ok = np.isfinite(self.depth) & (self.depth > 0)
+    def depth_valid(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """(stop - start, h, w) bool for frames [start, stop) (default: all): finite positive depth at or
+        above the confidence threshold."""
+        depth = self.depth[start:stop]
+        ok = np.isfinite(depth) & (depth > 0)
         if self.min_confidence is not None:
-            ok &= self.confidence >= self.min_confidence
+            ok &= self.confidence[start:stop] >= self.min_confidence
         return ok

@@ -13,16 +13,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from d4rt.io.disk_array import frame_blocks
+
 DEFAULT_THRESHOLD = 0.3
 DEFAULT_CONTRAST = 5.0
 NEIGHBOURS = 3  # differences on each side that a spike is compared with
 
 
-def frame_differences(rgb: np.ndarray) -> np.ndarray:
-    """rgb: (T, H, W, 3) uint8 -> (T - 1,) colour-histogram distance between frames k and k + 1, in [0, 1]."""
-    levels = (rgb >> 5).astype(np.int32)  # 8 levels per channel
-    bins = (levels[..., 0] * 64 + levels[..., 1] * 8 + levels[..., 2]).reshape(len(rgb), -1)
-    hist = np.stack([np.bincount(b, minlength=512) for b in bins]) / bins.shape[1]
+def frame_differences(rgb) -> np.ndarray:
+    """rgb: (T, H, W, 3) uint8 (numpy or DiskArray, read a block of frames at a time) -> (T - 1,)
+    colour-histogram distance between frames k and k + 1, in [0, 1]."""
+    hist = np.zeros((len(rgb), 512))
+    for a, b in frame_blocks(rgb, bytes_per_block=16 << 20):
+        levels = (rgb[a:b] >> 5).astype(np.int32)  # 8 levels per channel
+        bins = (levels[..., 0] * 64 + levels[..., 1] * 8 + levels[..., 2]).reshape(b - a, -1)
+        hist[a:b] = np.stack([np.bincount(row, minlength=512) for row in bins]) / bins.shape[1]
     return 0.5 * np.abs(np.diff(hist, axis=0)).sum(1)
 
 

@@ -10,42 +10,53 @@ import numpy as np
 from d4rt.errors import UserError
 
 
-def write_video(path: str | Path, frames: np.ndarray, fps: float = 12.0) -> Path:
-    """Write (T, H, W, 3) uint8 RGB frames as an H.264 mp4 (odd sizes are padded by one pixel)."""
-    frames = np.asarray(frames)
-    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
-        raise UserError(f"video frames must be (T, H, W, 3) uint8, got {frames.shape} {frames.dtype}")
-    # yuv420p needs even sizes: pad by edge replication rather than resample.
-    pad_h, pad_w = frames.shape[1] % 2, frames.shape[2] % 2
-    if pad_h or pad_w:
-        frames = np.pad(frames, ((0, 0), (0, pad_h), (0, pad_w), (0, 0)), mode="edge")
+def write_video(path: str | Path, frames, fps: float = 12.0) -> Path:
+    """Write RGB frames, (T, H, W, 3) uint8 or an iterable of (H, W, 3) uint8 frames (encoded as they
+    come, so a long video need not be held in memory), as an H.264 mp4 (odd sizes are padded by one
+    pixel)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with av.open(str(path), mode="w") as container:
-        stream = container.add_stream("libx264", rate=int(round(fps)))
-        stream.width, stream.height = frames.shape[2], frames.shape[1]
-        stream.pix_fmt = "yuv420p"
-        stream.options = {"crf": "18"}
+    container, stream, size = None, None, None
+    try:
         for frame in frames:
+            frame = np.asarray(frame)
+            if frame.ndim != 3 or frame.shape[-1] != 3 or frame.dtype != np.uint8 or (size and frame.shape != size):
+                raise UserError(f"video frames must be (H, W, 3) uint8 of one size, got {frame.shape} {frame.dtype}")
+            if container is None:
+                size = frame.shape
+                container = av.open(str(path), mode="w")
+                stream = container.add_stream("libx264", rate=int(round(fps)))
+                # yuv420p needs even sizes: pad by edge replication rather than resample.
+                stream.width, stream.height = frame.shape[1] + frame.shape[1] % 2, frame.shape[0] + frame.shape[0] % 2
+                stream.pix_fmt = "yuv420p"
+                stream.options = {"crf": "18"}
+            if frame.shape[0] % 2 or frame.shape[1] % 2:
+                frame = np.pad(frame, ((0, frame.shape[0] % 2), (0, frame.shape[1] % 2), (0, 0)), mode="edge")
             for packet in stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")):
                 container.mux(packet)
+        if container is None:
+            raise UserError("a video needs at least one frame (T, H, W, 3) uint8, got none")
         for packet in stream.encode():
             container.mux(packet)
+    finally:
+        if container is not None:
+            container.close()
     return path
 
 
-
-def read_video(path: str | Path, selection, progress: bool = False
+def read_video(path: str | Path, selection, progress: bool = False, frames=None
                ) -> tuple[list[np.ndarray], list[float], float | None]:
     """Decode the frames of a video file that ``selection`` (a :class:`d4rt.io.frames.FrameRange`) keeps,
     stopping as soon as it needs no more.
 
     Returns (frames: list of (H, W, 3) uint8 RGB, timestamps: list of seconds, fps: the stream's average
-    frame rate or None). A file FFmpeg cannot open or decode raises a UserError naming it.
+    frame rate or None). A file FFmpeg cannot open or decode raises a UserError naming it. ``frames``:
+    where to put the frames instead of a new list (anything with ``append`` and ``len``, e.g. a spool
+    file on disk).
     """
     from d4rt.progress import progress_bar
 
-    frames, times = [], []
+    frames, times = ([] if frames is None else frames), []
     try:
         with av.open(str(path)) as container:
             if not container.streams.video:

@@ -12,16 +12,17 @@ from d4rt.io.colmap_export import write_colmap
 from d4rt.io.depth_png import write_depth_pngs
 from d4rt.io.formats import check_output_dir, parse_formats
 from d4rt.io.glb import write_glb
+from d4rt.io.npz_stream import write_npz
 from d4rt.io.outputs import ReconstructionOutputs
 from d4rt.io.ply import write_ply
 from d4rt.io.staging import staged_folder
 from d4rt.io.trajectory import write_tum
 from d4rt.io.video import write_video
 from d4rt.progress import progress_bar
-from d4rt.viz.depth_video import depth_video_frames
+from d4rt.viz.depth_video import iter_depth_video_frames
 from d4rt.viz.frusta import frustum_segments
-from d4rt.viz.html_viewer import write_html
-from d4rt.viz.overlay import draw_tracks, project_tracks, track_colors
+from d4rt.viz.html_viewer import MAX_POINTS, even_subset, write_html
+from d4rt.viz.overlay import iter_drawn_tracks, project_tracks, track_colors
 from d4rt.viz.rerun_recording import write_rrd
 
 
@@ -40,21 +41,19 @@ def write_outputs(out: ReconstructionOutputs, directory: str | Path, formats, *,
 
 def _write_npz(out: ReconstructionOutputs, stage: Path, title: str) -> Path:
     arrays = {f.name: getattr(out, f.name) for f in fields(out)
-              if f.name not in ("rgb", "fps", "min_confidence", "dense", "colmap")}
+              if f.name not in ("rgb", "fps", "min_confidence", "dense", "colmap", "point_offsets")}
     arrays.update(fps=np.float64(out.fps), video_size=np.array(out.rgb.shape[1:3]),
                   min_confidence=np.float64(np.nan if out.min_confidence is None else out.min_confidence))
-    path = stage / "reconstruction.npz"
-    np.savez_compressed(path, **{k: v for k, v in arrays.items() if v is not None})
-    return path
+    return write_npz(stage / "reconstruction.npz", {k: v for k, v in arrays.items() if v is not None})
 
 
 def _write_depth(out, stage, title):
-    write_depth_pngs(stage / "depth", out.depth, out.depth_valid())
+    write_depth_pngs(stage / "depth", out.depth, out.depth_valid)
     return stage / "depth"
 
 
 def _write_depth_video(out, stage, title):
-    return write_video(stage / "depth.mp4", depth_video_frames(out.rgb, out.depth, out.depth_valid()), fps=out.fps)
+    return write_video(stage / "depth.mp4", iter_depth_video_frames(out.rgb, out.depth, out.depth_valid), fps=out.fps)
 
 
 def _write_ply(out, stage, title):
@@ -62,7 +61,8 @@ def _write_ply(out, stage, title):
 
 
 def _write_glb(out, stage, title):
-    return write_glb(stage / "scene.glb", out.points, out.point_colors, frusta(out))
+    keep = even_subset(len(out.points), GLB_MAX_POINTS)
+    return write_glb(stage / "scene.glb", out.points[keep], out.point_colors[keep], frusta(out))
 
 
 def _write_colmap(out, stage, title):
@@ -77,13 +77,14 @@ def _write_tum(out, stage, title):
 
 def _write_tracks_video(out, stage, title):
     xy, visible = track_pixels(out)
-    return write_video(stage / "tracks.mp4", draw_tracks(out.rgb, xy, visible, colors_of_tracks(out)), fps=out.fps)
+    return write_video(stage / "tracks.mp4", iter_drawn_tracks(out.rgb, xy, visible, colors_of_tracks(out)),
+                       fps=out.fps)
 
 
 def _write_rerun(out, stage, title):
     return write_rrd(stage / "reconstruction.rrd", out.rgb, out.depth, out.video_intrinsics, out.cam_to_world,
                      out.points, out.point_colors, out.point_frames, out.tracks, track_pixels(out)[1],
-                     colors_of_tracks(out), out.timestamps)
+                     colors_of_tracks(out), out.timestamps, point_offsets=out.point_offsets)
 
 
 def _write_html(out, stage, title):
@@ -96,6 +97,11 @@ def _write_dense(out, stage, title):
     path = stage / "dense_tracks.npz"
     np.savez_compressed(path, **out.dense)
     return path
+
+
+# scene.glb holds at most this many points, evenly spaced through the cloud (points.ply holds them all):
+# viewers of GLB files slow down long before, and a long video's cloud is not gathered in memory for it.
+GLB_MAX_POINTS = 1_000_000
 
 
 _WRITERS = {"npz": _write_npz, "depth": _write_depth, "depth-video": _write_depth_video, "ply": _write_ply,
@@ -119,7 +125,8 @@ def frusta(out: ReconstructionOutputs) -> np.ndarray:
     """(T, 8, 2, 3) camera frusta, 8% of the median camera-to-point distance deep."""
     centres = out.cam_to_world[:, :3, 3]
     if out.points is not None and len(out.points):
-        reach = float(np.median(np.linalg.norm(out.points - centres[out.point_frames], axis=1)))
+        keep = even_subset(len(out.points), MAX_POINTS)  # the median of an even subset: the cloud may be on disk
+        reach = float(np.median(np.linalg.norm(out.points[keep] - centres[out.point_frames[keep]], axis=1)))
     else:
         reach = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum()) or 1.0
     h, w = out.rgb.shape[1:3]

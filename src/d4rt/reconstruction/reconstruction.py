@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from d4rt.errors import UserError
+from d4rt.io.disk_array import DiskArray
 from d4rt.geometry.camera import cell_centres_uv, pixel_grid, pixel_to_uv
 from d4rt.geometry.transforms import invert_rigid
 from d4rt.geometry.umeyama import Similarity
@@ -127,14 +128,21 @@ class Reconstruction:
         Returns Depth(depth (T, H, W), confidence (T, H, W)), float32.
         """
         h, w = self.output_size(resolution)
-        uv = pixel_to_uv(pixel_grid(h, w), h, w)
         depth = np.zeros((self.num_frames, h, w), dtype=np.float32)
         conf = np.zeros_like(depth)
+        for frames, part in self.depth_by_window(resolution):
+            depth[frames], conf[frames] = part.depth, part.confidence
+        return Depth(depth, conf)
+
+    def depth_by_window(self, resolution: tuple[int, int] | str | None = None):
+        """The depth maps of :meth:`depth`, a window at a time (so a long video's maps need not be held
+        together): yields ``(frames (F,), Depth(depth (F, H, W), confidence (F, H, W)))`` for the frames
+        each window owns, in increasing frame order."""
+        h, w = self.output_size(resolution)
+        uv = pixel_to_uv(pixel_grid(h, w), h, w)
         for win in range(len(self.windows)):
             frames = np.array(owned(self.windows, win))
-            depth[frames], conf[frames] = window_depth(lambda q: self._ask(win, q), frames, uv, self._window_scale(win),
-                                                       h, w)
-        return Depth(depth, conf)
+            yield frames, Depth(*window_depth(lambda q: self._ask(win, q), frames, uv, self._window_scale(win), h, w))
 
     @cached_property
     def _camera_grid(self) -> tuple[list[dict], np.ndarray]:
@@ -470,6 +478,10 @@ def ask_in_chunks(answerer, queries: np.ndarray, chunk_size: int, progress: bool
 
 
 def _as_uint8_video(video) -> np.ndarray:
+    if isinstance(video, DiskArray):  # frames read from disk window by window (d4rt.io.frames, lazy=True)
+        if video.ndim != 4 or video.shape[-1] != 3 or min(video.shape[:3]) < 1 or video.dtype != np.uint8:
+            raise UserError(f"video must be uint8 frames (T, H, W, 3), got {video.shape} {video.dtype}")
+        return video
     v = video.detach().cpu().numpy() if isinstance(video, torch.Tensor) else np.asarray(video)
     if v.ndim != 4 or v.shape[-1] != 3 or min(v.shape[:3]) < 1:
         raise UserError(f"video must have shape (T, H, W, 3), got {v.shape}")

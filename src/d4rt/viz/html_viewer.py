@@ -15,6 +15,15 @@ import numpy as np
 MAX_POINTS = 200_000  # the page stays a few MB and renders interactively
 
 
+def even_subset(count: int, max_points: int) -> np.ndarray:
+    """Indices of at most ``max_points`` of ``count`` points, evenly spaced (every point when they fit):
+    a cloud stored frame by frame keeps every frame's share, and no index array as long as the cloud is
+    made."""
+    if count <= max_points:
+        return np.arange(count)
+    return np.unique(np.linspace(0, count - 1, max_points).round().astype(np.int64))
+
+
 def _b64(array: np.ndarray, dtype) -> str:
     return base64.b64encode(np.ascontiguousarray(array, dtype=dtype).tobytes()).decode("ascii")
 
@@ -26,11 +35,10 @@ def write_html(path: str | Path, points: np.ndarray, colors: np.ndarray, point_f
     """points: (M, 3) world, colors: (M, 3) uint8, point_frames: (M,) frame of each point; cam_to_world:
     (T, 4, 4); frusta: (T, S, 2, 3) world segments; tracks: (N, T, 3) world, track_visible: (N, T) bool,
     track_colors: (N, 3) uint8; fps: playback rate; timestamps: (T,) seconds or None. At most
-    ``max_points`` points are kept (an even random subset, the same every time)."""
+    ``max_points`` points are kept (:func:`even_subset`: the point arrays may be DiskArrays)."""
     t = len(cam_to_world)
-    if len(points) > max_points:
-        keep = np.sort(np.random.default_rng(0).choice(len(points), max_points, replace=False))
-        points, colors, point_frames = points[keep], colors[keep], point_frames[keep]
+    keep = even_subset(len(points), max_points)
+    points, colors, point_frames = points[keep], colors[keep], point_frames[keep]
     order = np.argsort(point_frames, kind="stable")
     points, colors = points[order], colors[order]
     offsets = np.searchsorted(point_frames[order], np.arange(t + 1))

@@ -8,6 +8,7 @@ from PIL import Image, ImageDraw
 
 from d4rt.geometry.camera import project
 from d4rt.geometry.transforms import apply_transform, invert_rigid
+from d4rt.io.disk_array import frame_blocks
 from d4rt.viz.colormaps import colormap
 
 
@@ -26,21 +27,29 @@ def track_colors(start_xy: np.ndarray, width: int) -> np.ndarray:
 
 def draw_tracks(rgb: np.ndarray, xy: np.ndarray, visible: np.ndarray, colors: np.ndarray, tail: int = 8) -> np.ndarray:
     """Frames (T, H, W, 3) uint8 with tracks drawn on them. xy: (N, T, 2) pixels; visible: (N, T) bool
-    (NaN or hidden positions are not drawn); colors: (N, 3) uint8; tail: frames of trail behind each dot."""
+    (NaN or hidden positions are not drawn); colors: (N, 3) uint8; tail: frames of trail behind each dot.
+    (:func:`iter_drawn_tracks` gives the same frames one at a time.)"""
+    return np.stack(list(iter_drawn_tracks(rgb, xy, visible, colors, tail)))
+
+
+def iter_drawn_tracks(rgb, xy: np.ndarray, visible: np.ndarray, colors: np.ndarray, tail: int = 8):
+    """The frames of :func:`draw_tracks` one at a time, reading ``rgb`` (numpy or DiskArray) a block of
+    frames at a time."""
     t, h, w = rgb.shape[:3]
     radius = max(1.0, min(h, w) / 120)
     ok = visible & np.isfinite(xy).all(-1)
-    out = []
-    for k in range(t):
-        image = Image.fromarray(rgb[k])
-        draw = ImageDraw.Draw(image, "RGBA")
-        for j in range(max(0, k - tail), k):
-            alpha = int(255 * (j - k + tail + 1) / (tail + 1))
-            both = np.nonzero(ok[:, j] & ok[:, j + 1])[0]
-            for n in both:
-                draw.line([tuple(xy[n, j]), tuple(xy[n, j + 1])], fill=(*colors[n], alpha), width=max(1, int(radius)))
-        for n in np.nonzero(ok[:, k])[0]:
-            x, y = xy[n, k]
-            draw.ellipse([x - radius, y - radius, x + radius, y + radius], fill=tuple(colors[n]))
-        out.append(np.asarray(image))
-    return np.stack(out)
+    for a, b in frame_blocks(rgb):
+        block = rgb[a:b]
+        for k in range(a, b):
+            image = Image.fromarray(block[k - a])
+            draw = ImageDraw.Draw(image, "RGBA")
+            for j in range(max(0, k - tail), k):
+                alpha = int(255 * (j - k + tail + 1) / (tail + 1))
+                both = np.nonzero(ok[:, j] & ok[:, j + 1])[0]
+                for n in both:
+                    draw.line([tuple(xy[n, j]), tuple(xy[n, j + 1])], fill=(*colors[n], alpha),
+                              width=max(1, int(radius)))
+            for n in np.nonzero(ok[:, k])[0]:
+                x, y = xy[n, k]
+                draw.ellipse([x - radius, y - radius, x + radius, y + radius], fill=tuple(colors[n]))
+            yield np.asarray(image)

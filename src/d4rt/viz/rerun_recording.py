@@ -22,11 +22,13 @@ def rerun_available() -> bool:
 
 def write_rrd(path: str | Path, rgb: np.ndarray, depth: np.ndarray, intrinsics: np.ndarray, cam_to_world: np.ndarray,
               points: np.ndarray, colors: np.ndarray, point_frames: np.ndarray, tracks: np.ndarray,
-              track_visible: np.ndarray, track_colors: np.ndarray, timestamps: np.ndarray | None = None) -> Path:
+              track_visible: np.ndarray, track_colors: np.ndarray, timestamps: np.ndarray | None = None,
+              point_offsets: np.ndarray | None = None) -> Path:
     """rgb: (T, H, W, 3) uint8; depth: (T, h, w) (0 = none); intrinsics: (T, 3, 3) for rgb's size;
     cam_to_world: (T, 4, 4); points: (M, 3) world, colors (M, 3) uint8, point_frames (M,); tracks:
     (N, T, 3) world, track_visible (N, T) bool, track_colors (N, 3) uint8; timestamps: (T,) seconds
-    (adds a ``time`` timeline) or None."""
+    (adds a ``time`` timeline) or None; point_offsets: (T + 1,) when the points are in frame order (frame
+    k's are [offsets[k], offsets[k + 1])): then each frame's are read alone (the arrays may be DiskArrays)."""
     import rerun as rr
 
     path = Path(path)
@@ -34,8 +36,9 @@ def write_rrd(path: str | Path, rgb: np.ndarray, depth: np.ndarray, intrinsics: 
     rec.save(path)
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
     t, h, w = rgb.shape[:3]
-    order = np.argsort(point_frames, kind="stable")
-    starts = np.searchsorted(point_frames[order], np.arange(t + 1))
+    if point_offsets is None:
+        order = np.argsort(point_frames, kind="stable")
+        starts = np.searchsorted(point_frames[order], np.arange(t + 1))
     for k in range(t):
         rec.set_time("frame", sequence=k)
         if timestamps is not None:
@@ -47,7 +50,7 @@ def write_rrd(path: str | Path, rgb: np.ndarray, depth: np.ndarray, intrinsics: 
                                                  camera_xyz=rr.ViewCoordinates.RDF))
         rec.log("world/camera/image", rr.Image(rgb[k]))
         rec.log("depth", rr.DepthImage(depth[k]))
-        mine = order[starts[k]:starts[k + 1]]
+        mine = slice(point_offsets[k], point_offsets[k + 1]) if point_offsets is not None else order[starts[k]:starts[k + 1]]
         rec.log("world/points", rr.Points3D(points[mine], colors=colors[mine]))
         if len(tracks):
             trails = []
