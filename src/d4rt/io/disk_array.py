@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 
 # How much of an array is read (and the exporters hold) at a time: small enough that the temporaries of a
-# block (float64 copies, masks, colours) stay a few tens of MB, large enough for few, long reads.
-BLOCK_BYTES = 8 << 20
+# block (float64 copies, masks, colours) stay tens of MB, and memory freed by one block is reused by the
+# next instead of growing the heap; large enough for few, long reads.
+BLOCK_BYTES = 2 << 20
 
 
 class DiskArray:

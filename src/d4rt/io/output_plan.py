@@ -165,7 +165,7 @@ class ConfidenceRange:
 
 
 # A long video's point cloud is made, filtered and stored this many frames' worth of pixels at a time.
-POINT_BLOCK_PIXELS = 1_000_000
+POINT_BLOCK_PIXELS = 250_000
 POINT_FIELDS = {"points": ((3,), np.float32), "point_colors": ((3,), np.uint8), "point_confidence": ((), np.float32),
                 "point_frames": ((), np.int64), "point_pixels": ((2,), np.int64)}
 

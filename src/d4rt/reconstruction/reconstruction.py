@@ -34,6 +34,9 @@ from d4rt.reconstruction.windows import (align_windows, hand_off, keeping_window
 KEYS = ("points", "uv", "visibility", "confidence")
 
 
+# Depth maps are decoded this many pixels at a time (whole frames): the float64 answers of a whole window
+# of VGA frames would be some 800 MB.
+DEPTH_QUERIES_PER_STEP = 262_144
 # How many pinhole cameras the intrinsics recipe fits: one per frame (the paper) or one for the video.
 CAMERA_MODELS = ("single", "per-frame")
 
@@ -135,14 +138,19 @@ class Reconstruction:
         return Depth(depth, conf)
 
     def depth_by_window(self, resolution: tuple[int, int] | str | None = None):
-        """The depth maps of :meth:`depth`, a window at a time (so a long video's maps need not be held
-        together): yields ``(frames (F,), Depth(depth (F, H, W), confidence (F, H, W)))`` for the frames
-        each window owns, in increasing frame order."""
+        """The depth maps of :meth:`depth`, a few frames at a time (so a long video's maps, and the answers
+        of a whole window's pixels, need not be held together): yields ``(frames (F,), Depth(depth (F, H,
+        W), confidence (F, H, W)))`` for consecutive frames of one window, at most DEPTH_QUERIES_PER_STEP
+        pixels' worth (one frame at least), in increasing frame order."""
         h, w = self.output_size(resolution)
         uv = pixel_to_uv(pixel_grid(h, w), h, w)
+        step = max(1, DEPTH_QUERIES_PER_STEP // (h * w))
         for win in range(len(self.windows)):
-            frames = np.array(owned(self.windows, win))
-            yield frames, Depth(*window_depth(lambda q: self._ask(win, q), frames, uv, self._window_scale(win), h, w))
+            owned_frames = np.array(owned(self.windows, win))
+            for i in range(0, len(owned_frames), step):
+                frames = owned_frames[i:i + step]
+                yield frames, Depth(*window_depth(lambda q: self._ask(win, q), frames, uv, self._window_scale(win),
+                                                  h, w))
 
     @cached_property
     def _camera_grid(self) -> tuple[list[dict], np.ndarray]:

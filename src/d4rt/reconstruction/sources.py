@@ -50,8 +50,10 @@ class AnswererSource:
 
 # Encoded windows kept beyond the two most recent while they fit in this many bytes: a long video's
 # recipes (alignment, depth, cameras, tracks) each sweep the windows, and a window re-encoded costs an
-# encoder pass, while a kept one costs its tokens and keys/values (about 6 MB for the tiny preset).
-DEFAULT_CACHE_BYTES = 1 << 30
+# encoder pass, while a kept one costs its tokens and keys/values (about 6 MB for the tiny preset, whose
+# encoder pass takes about 0.1 s on one CPU core). A fixed budget, so that memory does not grow with the
+# video's length (issue 19; 1 GiB before): a video of a few windows is still encoded once per window.
+DEFAULT_CACHE_BYTES = 32 << 20
 
 
 def encoded_bytes(answerer) -> int:
