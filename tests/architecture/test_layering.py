@@ -14,10 +14,11 @@ PACKAGE = Path(d4rt.__file__).parent
 # Lowest first: foundation, then the two engines (the model, the synthetic ground truth), the recipes
 # over any answerer, drawing, files, then the users of all of them: evaluation, training, speed and
 # memory measurement (d4rt bench) and the CLI.
-FOUNDATION = {"errors", "config", "devices", "progress", "geometry"}
+FOUNDATION = {"errors", "config", "devices", "progress", "geometry", "disk_array"}
 ALLOWED = {
     "errors": set(),
     "progress": set(),
+    "disk_array": set(),
     "config": {"errors"},
     "devices": {"errors"},
     "geometry": {"errors"},

@@ -4,7 +4,7 @@ as np.savez_compressed's do."""
 import numpy as np
 import pytest
 
-from d4rt.io.disk_array import DiskArray, frame_blocks, row_range
+from d4rt.disk_array import DiskArray, frame_blocks, row_range
 from d4rt.io.npz_stream import write_npz
 
 

@@ -348,7 +348,7 @@ def test_outputs_spooled_to_disk_equal_the_in_memory_ones(tmp_path, monkeypatch,
     """compute_outputs(spool=DIR) (what export_reconstruction and the CLI use: depth maps and point cloud
     written to disk a window and a block of frames at a time, the frames read from disk) gives the same
     arrays and files as the in-memory path, over several windows and several point blocks."""
-    from d4rt.io.disk_array import DiskArray
+    from d4rt.disk_array import DiskArray
     from d4rt.reconstruction import Reconstruction
 
     long_clip = render_clip(5, 10, 24, 32, environment="room", num_objects=3, camera_motion="orbit")

@@ -111,7 +111,7 @@ def test_mixed_sizes_corrupt_images_and_too_few_frames(tmp_path, frames):
 def test_spooled_frames_equal_the_loaded_ones_for_every_source(tmp_path, frames):
     """load_frames(..., spool=DIR): the same frames, indices and times, held on disk (a DiskArray read a
     few frames at a time) for every kind of source and selection; a consecutive uint8 .npy is read in place."""
-    from d4rt.io.disk_array import DiskArray
+    from d4rt.disk_array import DiskArray
 
     folder = tmp_path / "images"
     folder.mkdir()

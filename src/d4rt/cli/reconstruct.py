@@ -337,7 +337,7 @@ def reconstruct_shots(model, frames, shots, out_dir, args, formats, save_options
     """Each shot into its own folder (shot_000, ...) and a summary, shots.json: the cuts, and per shot its
     frames (of the frames used, and of the source) and folder, or why it was skipped. The whole folder
     appears at once when every shot is written (the exports' staging)."""
-    from d4rt.io.disk_array import row_range
+    from d4rt.disk_array import row_range
     from d4rt.io.staging import staged_folder
 
     rows = []

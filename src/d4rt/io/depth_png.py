@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from d4rt.io.disk_array import frame_blocks
+from d4rt.disk_array import frame_blocks
 
 MAX_VALUE = 65535
 SCALE_FILE = "depth_scale.json"

@@ -18,7 +18,7 @@ from PIL import Image, UnidentifiedImageError
 from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
-from d4rt.io.disk_array import BLOCK_BYTES, DiskArray, frame_blocks
+from d4rt.disk_array import BLOCK_BYTES, DiskArray, frame_blocks
 from d4rt.io.video import read_video
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".webm", ".mkv", ".m4v")
@@ -74,7 +74,7 @@ class Frames:
     """The frames to reconstruct.
 
     rgb: (T, H, W, 3) uint8 (a numpy array, or with ``load_frames(..., spool=DIR)`` a
-    :class:`d4rt.io.disk_array.DiskArray` read a few frames at a time); indices: (T,) their indices in the
+    :class:`d4rt.disk_array.DiskArray` read a few frames at a time); indices: (T,) their indices in the
     source; timestamps: (T,) seconds when the source has a clock (video files, image folders named by time
     stamps as in TUM RGB-D), else the source frame indices; fps: frames per second of the selection (None
     when unknown); source: the path.

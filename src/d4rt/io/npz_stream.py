@@ -1,5 +1,5 @@
 """``.npz`` files written a block of rows at a time: what ``np.savez_compressed`` writes (``np.load``
-reads it the same way), but from numpy arrays or :class:`d4rt.io.disk_array.DiskArray` s without holding
+reads it the same way), but from numpy arrays or :class:`d4rt.disk_array.DiskArray` s without holding
 any array whole in memory."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from d4rt.io.disk_array import frame_blocks
+from d4rt.disk_array import frame_blocks
 
 
 def write_npz(path: str | Path, arrays: dict, compress: bool = True) -> Path:

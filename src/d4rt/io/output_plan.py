@@ -15,7 +15,7 @@ from d4rt.geometry.transforms import apply_transform
 from d4rt.geometry.view import View
 from d4rt.geometry.voxel import voxel_subsample
 from d4rt.io.colmap_export import multiview_points
-from d4rt.io.disk_array import DiskArray
+from d4rt.disk_array import DiskArray
 from d4rt.io.formats import CAMERA_CHOICES, COLMAP_VIEWS, DEFAULT_FPS, DEFAULT_MAX_POINTS, FORMAT_NEEDS, POINT_SOURCES, ZOOM_SPREAD
 from d4rt.io.outputs import ReconstructionOutputs
 from d4rt.progress import progress_bar
@@ -54,7 +54,7 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     timestamps: (T,) seconds (default: frame numbers);
     fps: for the videos and the viewer (default: from the timestamps, else 10).
     spool: a folder for the arrays that grow with the video (depth maps, confidences, point cloud): they
-    are then :class:`d4rt.io.disk_array.DiskArray` files there, written a window or a block of frames at
+    are then :class:`d4rt.disk_array.DiskArray` files there, written a window or a block of frames at
     a time, so memory does not grow with the video's length (None: numpy arrays in memory). The folder
     must outlive the outputs.
     """
@@ -208,7 +208,7 @@ def _blocks(n: int, size: int):
 
 
 def _new_array(spool, name: str, shape: tuple, dtype):
-    """A zero array in memory, or in a file of the spool folder (:class:`d4rt.io.disk_array.DiskArray`)."""
+    """A zero array in memory, or in a file of the spool folder (:class:`d4rt.disk_array.DiskArray`)."""
     return np.zeros(shape, dtype) if spool is None else DiskArray.create(Path(spool) / f"{name}.raw", shape, dtype)
 
 

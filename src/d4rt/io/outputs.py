@@ -13,7 +13,7 @@ class ReconstructionOutputs:
     """Every array the exports write (the contents of ``reconstruction.npz``); None where not computed.
 
     The arrays that grow with the video (rgb, depth, confidence and the point cloud) may be
-    :class:`d4rt.io.disk_array.DiskArray` s (``compute_outputs(..., spool=DIR)``): the writers read them a
+    :class:`d4rt.disk_array.DiskArray` s (``compute_outputs(..., spool=DIR)``): the writers read them a
     block of frames at a time.
 
     Input: rgb (T, H, W, 3) uint8; timestamps (T,) seconds (or frame numbers); fps.

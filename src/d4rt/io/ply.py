@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from d4rt.errors import UserError
-from d4rt.io.disk_array import frame_blocks
+from d4rt.disk_array import frame_blocks
 
 _VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
                     ("confidence", "<f4"), ("frame", "<i4")])

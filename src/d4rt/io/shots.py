@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from d4rt.io.disk_array import frame_blocks
+from d4rt.disk_array import frame_blocks
 
 DEFAULT_THRESHOLD = 0.3
 DEFAULT_CONTRAST = 5.0

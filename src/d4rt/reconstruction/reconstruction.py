@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from d4rt.errors import UserError
-from d4rt.io.disk_array import DiskArray
+from d4rt.disk_array import DiskArray
 from d4rt.geometry.camera import cell_centres_uv, pixel_grid, pixel_to_uv
 from d4rt.geometry.transforms import invert_rigid
 from d4rt.geometry.umeyama import Similarity

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from d4rt.io.disk_array import frame_blocks
+from d4rt.disk_array import frame_blocks
 
 from d4rt.viz.colormaps import colormap, depth_range, depth_to_rgb
 

@@ -8,7 +8,7 @@ from PIL import Image, ImageDraw
 
 from d4rt.geometry.camera import project
 from d4rt.geometry.transforms import apply_transform, invert_rigid
-from d4rt.io.disk_array import frame_blocks
+from d4rt.disk_array import frame_blocks
 from d4rt.viz.colormaps import colormap
 
 
