@@ -32,20 +32,21 @@ HELD_OUT_SEED = 7_000_000
 STRIDES = (1, 3, 6)
 
 
-def median_fx(model: D4RT, rgb: np.ndarray) -> np.ndarray:
+def per_frame_fx(model: D4RT, rgb: np.ndarray) -> np.ndarray:
+    """(T,) estimated fx of each frame, pixels."""
     return model.reconstruct(rgb).cameras().intrinsics[:, 0, 0]
 
 
 def tum_probe(model: D4RT, rgb: np.ndarray) -> dict:
     variants = {"all": rgb, "every 2nd": rgb[::2], "every 3rd": rgb[::3], "each twice": np.repeat(rgb, 2, 0)[:24],
                 "first 9": rgb[:9], "last 9": rgb[8:]}
-    return {name: float(np.median(median_fx(model, v))) / TUM_FX - 1.0 for name, v in variants.items()}
+    return {name: float(np.median(per_frame_fx(model, v))) / TUM_FX - 1.0 for name, v in variants.items()}
 
 
 def synthetic_probe(model: D4RT, clips: dict) -> dict:
     out = {}
     for stride, rendered in clips.items():
-        logs = np.array([np.median(np.log(median_fx(model, c.rgb) / c.intrinsics[:, 0, 0])) for c in rendered])
+        logs = np.array([np.median(np.log(per_frame_fx(model, c.rgb) / c.intrinsics[:, 0, 0])) for c in rendered])
         out[str(stride)] = {"median_log_ratio": float(np.median(logs)),
                             "median_abs_error": float(np.median(np.abs(np.exp(logs) - 1.0)))}
     return out

@@ -87,7 +87,7 @@ class DiskArray:
         return whole if dtype is None else whole.astype(dtype, copy=False)
 
     def __iter__(self):
-        for start, stop in self.blocks():
+        for start, stop in frame_blocks(self):
             yield from self.read(start, stop)
 
     def __getitem__(self, key):
@@ -124,13 +124,6 @@ class DiskArray:
 
     # -- reading and writing rows ------------------------------------------------------------------
 
-    def blocks(self, start: int = 0, stop: int | None = None):
-        """[a, b) runs of rows of about BLOCK_BYTES each, covering [start, stop)."""
-        stop = len(self) if stop is None else stop
-        step = max(1, BLOCK_BYTES // max(self.row_bytes, 1))
-        for a in range(start, stop, step):
-            yield a, min(a + step, stop)
-
     def read(self, start: int, stop: int) -> np.ndarray:
         """Rows [start, stop) as a new array."""
         count = max(0, stop - start)
@@ -153,7 +146,7 @@ class DiskArray:
         order = np.argsort(index, kind="stable")
         wanted = index[order]
         out = np.empty((len(index), *self.row_shape), dtype=self.dtype)
-        for a, b in self.blocks():
+        for a, b in frame_blocks(self):
             lo, hi = np.searchsorted(wanted, [a, b])
             if lo == hi:
                 continue
@@ -206,12 +199,16 @@ class DiskArray:
 def frame_blocks(array, frames_per_block: int | None = None, bytes_per_block: int = BLOCK_BYTES):
     """[a, b) runs of rows of ``array`` (numpy or DiskArray) of about ``bytes_per_block`` each (or
     ``frames_per_block`` rows): how the exporters walk a long video's per-frame arrays."""
-    n = len(array)
     if frames_per_block is None:
         row = int(np.prod(array.shape[1:], dtype=np.int64)) * np.dtype(array.dtype).itemsize
         frames_per_block = max(1, bytes_per_block // max(row, 1))
-    for a in range(0, n, frames_per_block):
-        yield a, min(a + frames_per_block, n)
+    return ranges(len(array), frames_per_block)
+
+
+def ranges(count: int, step: int):
+    """[a, b) runs of ``step`` (the last one shorter) covering [0, count)."""
+    for a in range(0, count, step):
+        yield a, min(a + step, count)
 
 
 def row_range(array, start: int, stop: int):

@@ -5,6 +5,7 @@ import json
 import struct
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import av
 import numpy as np
@@ -360,8 +361,7 @@ def test_outputs_spooled_to_disk_equal_the_in_memory_ones(tmp_path, monkeypatch,
     in_memory = output_plan.compute_outputs(long_clip.reconstruction(window=4, overlap=1), names, **options)
     spool = tmp_path / "spool"
     spool.mkdir()
-    rec = Reconstruction.from_clip(type("C", (), {"oracle": long_clip.oracle, "rgb": frames_on_disk})(), window=4,
-                                   overlap=1)
+    rec = Reconstruction.from_clip(SimpleNamespace(oracle=long_clip.oracle, rgb=frames_on_disk), window=4, overlap=1)
     on_disk = output_plan.compute_outputs(rec, names, spool=spool, **options)
     assert isinstance(on_disk.depth, DiskArray) and isinstance(on_disk.points, DiskArray)
     for name in ("depth", "confidence", "points", "point_colors", "point_confidence", "point_frames", "point_pixels",

@@ -15,7 +15,7 @@ from d4rt.geometry.transforms import apply_transform
 from d4rt.geometry.view import View
 from d4rt.geometry.voxel import voxel_subsample
 from d4rt.io.colmap_export import multiview_points
-from d4rt.disk_array import DiskArray
+from d4rt.disk_array import DiskArray, ranges
 from d4rt.io.formats import CAMERA_CHOICES, COLMAP_VIEWS, DEFAULT_FPS, DEFAULT_MAX_POINTS, FORMAT_NEEDS, POINT_SOURCES, ZOOM_SPREAD
 from d4rt.io.outputs import ReconstructionOutputs
 from d4rt.progress import progress_bar
@@ -181,8 +181,9 @@ def _point_cloud(rec, out: ReconstructionOutputs, points_from: str, point_stride
     columns = {name: _growing(spool, name, shape, dtype) for name, (shape, dtype) in POINT_FIELDS.items()}
     counts = np.zeros(t, dtype=np.int64)
     found = ConfidenceRange()
-    per_frame = -(-(out_h if points_from == "depth" else h) // stride) * -(-(out_w if points_from == "depth" else w) // stride)
-    for a, b in _blocks(t, max(1, POINT_BLOCK_PIXELS // per_frame)):
+    rows, cols = (out_h, out_w) if points_from == "depth" else (h, w)  # the grid the points are taken from
+    per_frame = -(-rows // stride) * -(-cols // stride)
+    for a, b in ranges(t, max(1, POINT_BLOCK_PIXELS // per_frame)):
         if points_from == "depth":
             cloud = point_cloud_from_depth(out.depth[a:b], out.confidence[a:b], out.intrinsics[a:b],
                                            out.cam_to_world[a:b], rec.video[a:b], stride)
@@ -200,11 +201,6 @@ def _point_cloud(rec, out: ReconstructionOutputs, points_from: str, point_stride
     for name, column in columns.items():
         setattr(out, name, column.finish())
     out.point_offsets = np.concatenate([[0], np.cumsum(counts)])
-
-
-def _blocks(n: int, size: int):
-    for a in range(0, n, size):
-        yield a, min(a + size, n)
 
 
 def _new_array(spool, name: str, shape: tuple, dtype):
@@ -229,12 +225,11 @@ class _Rows:
         return np.concatenate(self.parts) if self.parts else np.zeros((0, *self.row_shape), self.dtype)
 
 
-class _DiskRows(_Rows):
-    """Rows appended to a file as they come (a DiskArray at the end)."""
+class _DiskRows:
+    """Rows appended to a file as they come (a DiskArray at the end, of the first block's dtype)."""
 
     def __init__(self, path, row_shape, dtype):
-        super().__init__(row_shape, dtype)
-        self.path, self.array = path, None
+        self.path, self.row_shape, self.dtype, self.array = path, row_shape, dtype, None
 
     def append(self, rows) -> None:
         rows = np.asarray(rows).reshape(-1, *self.row_shape)
@@ -243,7 +238,7 @@ class _DiskRows(_Rows):
         self.array.append(rows)
 
     def finish(self):
-        return self.array if self.array is not None else super().finish()
+        return self.array if self.array is not None else np.zeros((0, *self.row_shape), self.dtype)
 
 
 def _colmap_points(rec, out: ReconstructionOutputs, max_points: int) -> dict:
@@ -274,7 +269,7 @@ def spread_subset(points, score, max_points: int, block: int = POINT_BLOCK_PIXEL
     if len(points) <= block:
         return voxel_subsample(np.asarray(points), np.asarray(score), max_points)
     kept = np.zeros(0, dtype=np.int64)
-    for a, b in _blocks(len(points), block):
+    for a, b in ranges(len(points), block):
         candidates = np.sort(np.concatenate([kept, a + voxel_subsample(points[a:b], score[a:b], max_points)]))
         kept = candidates[voxel_subsample(points[candidates], score[candidates], max_points)]
     return kept
