@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+FLUSH_EVERY = 8  # frames
 TRAIL = 8  # frames of track history drawn at each time
 
 
@@ -61,6 +62,8 @@ def write_rrd(path: str | Path, rgb: np.ndarray, depth: np.ndarray, intrinsics: 
             now = track_visible[:, k]
             rec.log("world/tracks", rr.LineStrips3D(trails, colors=track_colors))
             rec.log("world/tracks/now", rr.Points3D(tracks[now, k], colors=track_colors[now]))
+        if k % FLUSH_EVERY == FLUSH_EVERY - 1:
+            rec.flush()  # waits until the frames so far are on disk: rerun holds at most this many in memory
     rec.flush()
     rec.disconnect()
     return path
