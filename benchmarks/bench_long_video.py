@@ -51,6 +51,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="JSON file to write")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.lower().split("x"))
+    sys.path.insert(0, str(HERE / "src"))  # this tree's d4rt, installed or not
     trees = {"new": HERE} | ({"old": args.old.resolve()} if args.old else {})
     print(f"CPU: {cpu_name()}", flush=True)
     work = Path(tempfile.mkdtemp(prefix="d4rt-long-video-"))
