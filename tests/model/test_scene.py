@@ -45,17 +45,22 @@ def test_encoder_runs_once_however_many_chunks_are_decoded(make_model, random_vi
 
 def test_preallocated_answers_equal_the_chunks_bit_for_bit(make_model, random_video, random_queries):
     """query() writes each chunk's answers into tensors of the final size: the same bits as decoding the
-    chunks one by one and concatenating them (the uneven last chunk included), under bf16 autocast too."""
+    chunks one by one and concatenating them (the uneven last chunk included), under bf16 autocast too,
+    where the last chunk (3 queries) is decoded padded to 4 (padded_rows) and its 4th answer dropped."""
     model = make_model()
     scene = model.encode(random_video(5, 30, 40))
     queries = random_queries(23, 5)
     for autocast in (False, True):
         with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=autocast):
             answers = scene.query(queries, chunk_size=5)
-            pieces = [model.decode(queries[None, i:i + 5].float(), scene.scene_kv(True), scene.patch_video, True)
-                      for i in range(0, 23, 5)]
+            chunks = [queries[i:i + 5].float() for i in range(0, 23, 5)]
+            if autocast:
+                chunks[-1] = torch.cat([chunks[-1], chunks[-1][-1:]])
+            pieces = [{k: v[0, :min(5, 23 - 5 * i)] for k, v in
+                       model.decode(c[None], scene.scene_kv(True), scene.patch_video, True).items()}
+                      for i, c in enumerate(chunks)]
         for key in OUTPUT_KEYS:
-            expected = torch.cat([piece[key][0] for piece in pieces])
+            expected = torch.cat([piece[key] for piece in pieces])
             assert answers[key].dtype == expected.dtype and torch.equal(answers[key], expected), (key, autocast)
 
 
@@ -256,3 +261,21 @@ def test_recipes_never_recompute_the_scene_keys_values(make_model, random_video)
     rec.tracks(np.array([[0, 3.0, 4.0], [5, 10.0, 20.0]]))
     assert encoder_calls.calls == 1
     assert [p.calls for p in projections] == [1] * len(projections)
+
+
+def test_under_autocast_a_short_chunk_is_decoded_as_a_power_of_two(make_model, random_video, random_queries):
+    """padded_rows: oneDNN keeps a kernel per matrix shape, so the last chunk is decoded padded to the next
+    power of two (repeats of its last query, dropped); its answers stay those of the unpadded decode."""
+    model = make_model()
+    scene = model.encode(random_video(5, 30, 40))
+    queries = random_queries(37, 5)
+    seen = []
+    decode = model.decode
+    model.decode = lambda q, *a: seen.append(q.shape[1]) or decode(q, *a)
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
+        answers = scene.query(queries, chunk_size=16)
+        model.decode = decode
+        unpadded = decode(queries[None, 32:].float(), scene.scene_kv(True), scene.patch_video, True)
+    assert seen == [16, 16, 8] and answers["points"].shape == (37, 3)
+    for key in OUTPUT_KEYS:
+        torch.testing.assert_close(answers[key][32:], unpadded[key][0], atol=2e-2, rtol=2e-2)

@@ -51,6 +51,18 @@ def decode_bytes_per_query(config: "D4RTConfig", num_tokens: int, element_bytes:
     return per_block + patch + 4 * 32
 
 
+def padded_rows(rows: int, chunk: int) -> int:
+    """How many queries a chunk of ``rows`` is decoded as: the next power of two, at most ``chunk``.
+
+    Why: oneDNN (the CPU's bf16 matrix products) builds and keeps a kernel for every matrix shape it meets,
+    and a long video's many different last-chunk sizes each added one: measured, about 45 MiB of the peak of
+    a 192-frame run. Rounding keeps the shapes to a few; the padding costs at most one chunk's worth per call.
+    Used under autocast only: a padded chunk may round its last bits differently, and float32 answers stay
+    exactly those of unpadded decoding.
+    """
+    return min(chunk, 1 << max(rows - 1, 0).bit_length())
+
+
 def auto_chunk_size(config: "D4RTConfig", num_tokens: int, device: torch.device | str,
                     memory_fraction: float = 0.25, largest: int = 1 << 16) -> int:
     """The largest power-of-two chunk whose decoding fits ``memory_fraction`` of the free memory.
@@ -160,13 +172,17 @@ class EncodedScene:
         # No queries still run one (empty) chunk, so the empty answers have the usual shapes and dtypes.
         n = queries.shape[0]
         outputs: dict[str, torch.Tensor] = {}
+        pad = autocast_dtype(device) is not None  # oneDNN's reduced-precision path (see padded_rows)
         for start in range(0, max(n, 1), chunk):
-            answer = self.model.decode(queries[None, start:start + chunk], self.scene_kv(cache), self.patch_video,
-                                       share_sources)
+            part = queries[start:start + chunk]
+            rows = part.shape[0]
+            if pad and 0 < rows < padded_rows(rows, chunk):  # repeats of the last query, answered and dropped
+                part = torch.cat([part, part[-1:].expand(padded_rows(rows, chunk) - rows, -1)])
+            answer = self.model.decode(part[None], self.scene_kv(cache), self.patch_video, share_sources)
             if not outputs:
                 outputs = {key: answer[key].new_empty((n, *answer[key].shape[2:])) for key in OUTPUT_KEYS}
             for key in OUTPUT_KEYS:
-                outputs[key][start:start + answer[key].shape[1]] = answer[key][0]
+                outputs[key][start:start + rows] = answer[key][0, :rows]
         return outputs
 
     def __repr__(self) -> str:
