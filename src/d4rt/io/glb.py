@@ -32,7 +32,7 @@ def write_glb(path: str | Path, points: np.ndarray, colors: np.ndarray, frusta: 
     """points: (M, 3) world (OpenCV camera 0); colors: (M, 3) uint8; frusta: (T, K, 2, 3) world segments
     (see ``d4rt.viz.frusta``). Writes meshes and nodes ``points`` (POINTS) and ``cameras`` (LINES); an
     empty part is left out."""
-    segments = np.asarray(frusta, dtype=np.float64).reshape(-1, 3)
+    segments = np.asarray(frusta).reshape(-1, 3)
     parts = []
     if len(points):
         parts.append(("points", _POINTS, np.asarray(points), _rgba(np.asarray(colors, np.uint8))))

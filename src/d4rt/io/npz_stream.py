@@ -1,6 +1,6 @@
 """``.npz`` files written a block of rows at a time: what ``np.savez_compressed`` writes (``np.load``
-reads it the same way; deflated at a faster level), but from numpy arrays or :class:`d4rt.disk_array.DiskArray` s without holding
-any array whole in memory."""
+reads it the same way; deflated at a faster level), but from numpy arrays or
+:class:`d4rt.disk_array.DiskArray` s without holding any array whole in memory."""
 
 from __future__ import annotations
 

@@ -137,7 +137,8 @@ class EncodedScene:
                 [0, num_frames). Anything else raises :class:`UserError`.
             chunk_size: queries decoded at once (default: config ``query_chunk_size``; ``"auto"``: the
                 largest that fits the free memory, see :func:`auto_chunk_size`); only memory and speed
-                depend on it, never the answers.
+                depend on it, never the answers beyond rounding (the matrix products' order of sums, and
+                under autocast the bf16 rounding of a padded last chunk, see :func:`padded_rows`).
             cache_kv: reuse the scene keys/values across chunks and calls (default: config
                 ``cache_scene_kv``); False recomputes them for every chunk.
             share_sources: consecutive queries with the same (u, v, t_src), such as the T queries of a
@@ -176,8 +177,9 @@ class EncodedScene:
         for start in range(0, max(n, 1), chunk):
             part = queries[start:start + chunk]
             rows = part.shape[0]
-            if pad and 0 < rows < padded_rows(rows, chunk):  # repeats of the last query, answered and dropped
-                part = torch.cat([part, part[-1:].expand(padded_rows(rows, chunk) - rows, -1)])
+            extra = padded_rows(rows, chunk) - rows if pad and rows else 0
+            if extra:  # repeats of the last query, answered and dropped
+                part = torch.cat([part, part[-1:].expand(extra, -1)])
             answer = self.model.decode(part[None], self.scene_kv(cache), self.patch_video, share_sources)
             if not outputs:
                 outputs = {key: answer[key].new_empty((n, *answer[key].shape[2:])) for key in OUTPUT_KEYS}
