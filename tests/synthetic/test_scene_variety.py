@@ -7,7 +7,7 @@ import pytest
 
 from d4rt.errors import UserError
 from d4rt.synthetic import CAMERA_MOTIONS, render_clip
-from d4rt.synthetic.sampling import SceneOptions, sample_scene
+from d4rt.synthetic.sampling import MOVING_CAMERA_MOTIONS, SceneOptions, sample_scene
 
 
 @pytest.fixture(scope="module")
@@ -18,7 +18,9 @@ def scenes():
 def test_random_scenes_cover_environments_motions_and_shapes(scenes):
     infos = [s.description.info for s in scenes]
     assert {i["environment"] for i in infos} == {"room", "outdoor"}
-    assert {i["camera_motion"] for i in infos} >= set(CAMERA_MOTIONS) - {"static"}
+    assert {i["camera_motion"] for i in infos} >= set(MOVING_CAMERA_MOTIONS)
+    assert set(CAMERA_MOTIONS) == set(MOVING_CAMERA_MOTIONS) | {"static", "walk"}
+    assert "walk" not in {i["camera_motion"] for i in infos}  # only when walk_fraction asks for it
     shapes = {b.shape for s in scenes for b in s.description.bodies[1:]}
     assert shapes == {"sphere", "box", "cylinder", "cone"}
     kinds = [k for i in infos for k in i["body_motion"][1:]]
@@ -104,3 +106,32 @@ def test_bad_seed_and_sizes_fail_clearly():
         render_clip(-3, 2, 16, 16)
     with pytest.raises(UserError, match="positive"):
         render_clip(0, 0, 16, 16)
+
+
+def _heading_degrees(cam_to_world: np.ndarray) -> np.ndarray:
+    z = cam_to_world[:, :3, 2]  # optical axis in the world
+    return np.degrees(np.unwrap(np.arctan2(z[:, 1], z[:, 0])))
+
+
+def test_walking_camera_paths_travel_and_turn_like_hand_held_footage():
+    # 17 frames 1 s apart (the real TUM frames' spacing): the camera is carried around the scene.
+    options = SceneOptions(walk_fraction=1.0, time_stride=12)
+    scenes = [sample_scene(seed, 17, 48, 64, options) for seed in range(16)]
+    assert {s.description.info["camera_motion"] for s in scenes} == {"walk"}
+    travel = [np.linalg.norm(s.cam_to_world[:, :3, 3] - s.cam_to_world[0, :3, 3], axis=1).max() for s in scenes]
+    sweep = [np.ptp(_heading_degrees(s.cam_to_world)) for s in scenes]
+    assert np.median(travel) > 0.8 and np.median(sweep) > 30, (travel, sweep)
+    for s in scenes:
+        r = s.cam_to_world[:, :3, :3]
+        assert np.allclose(r @ r.transpose(0, 2, 1), np.eye(3), atol=1e-9)
+        if s.description.info["environment"] == "room":  # the camera stays inside the room
+            half = np.array(s.description.bodies[0].half_extents[:2])
+            assert np.all(np.abs(s.cam_to_world[:, :2, 3]) <= half - 0.3)
+    # At the native frame rate the same paths are smooth: a few degrees and centimetres per frame.
+    for seed in range(8):
+        s = sample_scene(seed, 16, 48, 64, SceneOptions(walk_fraction=1.0))
+        c = s.cam_to_world[:, :3, 3]
+        assert np.linalg.norm(np.diff(c, axis=0), axis=1).max() < 0.2
+        assert np.abs(np.diff(_heading_degrees(s.cam_to_world))).max() < 10
+    with pytest.raises(UserError, match="walk_fraction"):
+        sample_scene(0, 4, 16, 16, SceneOptions(walk_fraction=1.5))

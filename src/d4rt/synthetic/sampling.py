@@ -17,8 +17,10 @@ from d4rt.errors import UserError
 from d4rt.geometry.transforms import rigid, rotation_about_axis
 from d4rt.synthetic.scene import Body, Light, Material, SceneDescription
 
-CAMERA_MOTIONS = ("orbit", "forward", "pan", "truck", "handheld", "static")
-MOVING_CAMERA_MOTIONS = CAMERA_MOTIONS[:-1]
+# The moving kinds a random scene draws from; "walk" only when SceneOptions.walk_fraction asks for it, so the
+# scenes of every existing seed (and the frozen benchmarks built on them) stay the same.
+MOVING_CAMERA_MOTIONS = ("orbit", "forward", "pan", "truck", "handheld")
+CAMERA_MOTIONS = (*MOVING_CAMERA_MOTIONS, "static", "walk")
 OBJECT_SHAPES = ("sphere", "box", "cylinder", "cone")
 MAX_BODIES = 255  # object ids are stored as uint8
 
@@ -48,6 +50,7 @@ class SceneOptions:
     time_stride: int = 1
     principal_point_jitter: float = 0.0
     shadows: bool = True
+    walk_fraction: float = 0.0
 
     def validate(self) -> None:
         if self.environment not in (None, "room", "outdoor"):
@@ -63,6 +66,8 @@ class SceneOptions:
             raise UserError(f"moving_fraction must be in [0, 1], got {self.moving_fraction}")
         if self.fps <= 0 or int(self.time_stride) != self.time_stride or self.time_stride < 1:
             raise UserError(f"fps must be > 0 and time_stride a positive integer, got {self.fps}, {self.time_stride}")
+        if not 0.0 <= self.walk_fraction <= 1.0:
+            raise UserError(f"walk_fraction must be in [0, 1], got {self.walk_fraction}")
         if not 0.0 <= self.principal_point_jitter < 0.5:
             raise UserError(f"principal_point_jitter must be in [0, 0.5), got {self.principal_point_jitter}")
 
@@ -189,6 +194,8 @@ class _CameraPath:
         self.shake_pos = _Sinusoids(rng, 3, rng.uniform(0.005, 0.02), (1.0, 3.5), 4) if shake else None
         self.shake_rot = _Sinusoids(rng, 3, math.radians(rng.uniform(0.2, 0.8)), (1.0, 3.5), 4) if shake else None
         self.roll = float(rng.normal(0.0, math.radians(2.0)))
+        if kind == "walk":  # drawn last, so the other kinds' paths keep their random streams
+            self.heading = _Sinusoids(rng, 1, math.radians(rng.uniform(35.0, 70.0)), (0.03, 0.12))
 
     def centre_and_target(self, tau: float) -> tuple[np.ndarray, np.ndarray]:
         k, s = self.kind, self.speed * self.sign
@@ -209,6 +216,10 @@ class _CameraPath:
             return self.start + s * tau * self.right_h, self.target
         if k == "handheld":
             return self.start + self.speed * self.wander(tau), self.target + 0.3 * self.look_wander(tau)
+        if k == "walk":  # speed is the wander's scale (m); the height changes five times less than the floor position
+            c = self.start + self.speed * self.wander(tau) * np.array([1.0, 1.0, 0.2])
+            d = rotation_about_axis([0.0, 0.0, 1.0], self.heading(tau)[0]) @ (self.target - self.start)
+            return c, c + d + np.array([0.0, 0.0, self.pitch_wobble(tau)[0]])
         return self.start, self.target  # static
 
     def centre(self, tau: float) -> np.ndarray:
@@ -232,15 +243,17 @@ class _CameraPath:
 
 
 def _camera_speed(rng, kind: str) -> float:
-    """Typical speed of each kind of motion: rad/s for orbit and pan, m/s otherwise."""
-    return {
+    """Typical speed of each kind of motion: rad/s for orbit and pan, the wander's scale (m) for walk, m/s
+    otherwise."""
+    speeds = {  # every entry is drawn whatever the kind: the random stream of existing seeds depends on it
         "orbit": math.radians(rng.uniform(8, 30)),
         "forward": rng.uniform(0.3, 1.1),
         "pan": math.radians(rng.uniform(8, 35)),
         "truck": rng.uniform(0.25, 0.9),
         "handheld": rng.uniform(0.15, 0.45),
         "static": 0.0,
-    }[kind]
+    }
+    return float(rng.uniform(0.6, 1.5)) if kind == "walk" else speeds[kind]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -456,6 +469,8 @@ def sample_scene(seed: int, frames: int, height: int, width: int, options: Scene
 
     env_kind = options.environment or str(rng.choice(["room", "outdoor"], p=[0.6, 0.4]))
     cam_kind = options.camera_motion or str(rng.choice(MOVING_CAMERA_MOTIONS))
+    if options.camera_motion is None and options.walk_fraction > 0 and rng.uniform() < options.walk_fraction:
+        cam_kind = "walk"
     shake = bool(rng.uniform() < 0.5) if options.shake is None else options.shake
     do_zoom = bool(rng.uniform() < 0.25) if options.zoom is None else options.zoom
     zoom = float(np.exp(rng.uniform(-1, 1) * math.log(1.5))) if do_zoom else 1.0
