@@ -27,12 +27,24 @@ def voxel_subsample(points: np.ndarray, score: np.ndarray, max_points: int, iter
     return np.sort(order[chosen])
 
 
+def _voxel_keys(points: np.ndarray, side: float, box: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """(M,) int64 id of the voxel of the given side that holds each point; box: the points' (min, max)
+    per axis when already known (a reduction over the points costs as much as the rest)."""
+    lo, hi = box if box is not None else (points.min(0), points.max(0))
+    cells = ((points - lo) / side).astype(np.int64)  # >= 0, so truncation is the floor
+    dims = ((hi - lo) / side).astype(np.int64) + 1  # the largest cell index + 1 on each axis
+    return (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+
+
 def _first_per_voxel(points: np.ndarray, side: float) -> np.ndarray:
     """Index of the first point in each occupied voxel of the given side."""
-    cells = np.floor((points - points.min(0)) / side).astype(np.int64)
-    dims = cells.max(0) + 1
-    keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
-    return np.unique(keys, return_index=True)[1]
+    return np.unique(_voxel_keys(points, side), return_index=True)[1]
+
+
+def _count_voxels(points: np.ndarray, side: float, box: tuple[np.ndarray, np.ndarray]) -> int:
+    """Number of occupied voxels of the given side (a plain sort: several times faster than np.unique)."""
+    keys = np.sort(_voxel_keys(points, side, box))
+    return int(np.count_nonzero(keys[1:] != keys[:-1])) + 1 if len(keys) else 0
 
 
 def _voxel_side(points: np.ndarray, max_points: int, iterations: int, sample_factor: int = 20) -> float:
@@ -41,14 +53,15 @@ def _voxel_side(points: np.ndarray, max_points: int, iterations: int, sample_fac
     about 20 points per voxel, the sample occupies nearly the voxels the whole cloud does)."""
     if len(points) > sample_factor * max_points:
         points = points[np.random.default_rng(0).choice(len(points), sample_factor * max_points, replace=False)]
-    extent = np.ptp(points, axis=0)
+    bounds = points.min(0), points.max(0)
+    extent = bounds[1] - bounds[0]
     box = float(np.cbrt(np.prod(np.where(extent > 0, extent, extent.max() or 1.0)) / max_points))
     lo, hi = box / 1000.0, box  # at the bounding box's side the voxels number about max_points
-    while len(_first_per_voxel(points, hi)) > max_points:
+    while _count_voxels(points, hi, bounds) > max_points:
         lo, hi = hi, hi * 2.0
     for _ in range(iterations):
         mid = float(np.sqrt(lo * hi))
-        if len(_first_per_voxel(points, mid)) <= max_points:
+        if _count_voxels(points, mid, bounds) <= max_points:
             hi = mid
         else:
             lo = mid

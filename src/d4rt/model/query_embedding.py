@@ -43,10 +43,9 @@ def sample_rgb_patches(
         dropped, not renormalised, so an edge fades to the mean colour.
     """
     b, t, h, w, _ = video.shape
-    n = uv.shape[1]
     device = video.device
     # Samples are whole pixels apart, so every sample of a patch has the same sub-pixel offset: gather
-    # one (size + 1)^2 window per query and blend its four shifted copies with four scalar weights
+    # one (size + 1)^2 window per query and blend its four shifted copies with two scalar weights
     # (a third of the reads of blending each sample's own four neighbours).
     x = uv[..., 0].float() * w - 0.5 - (size - 1) / 2  # (B, N) left sample column
     y = uv[..., 1].float() * h - 0.5 - (size - 1) / 2  # (B, N) top sample row
@@ -55,15 +54,20 @@ def sample_rgb_patches(
     steps = torch.arange(size + 1, device=device)
     cols = x0.long()[..., None] + steps  # (B, N, size + 1)
     rows = y0.long()[..., None] + steps
-    inside = ((rows >= 0) & (rows < h))[..., :, None] & ((cols >= 0) & (cols < w))[..., None, :]
     base = (torch.arange(b, device=device)[:, None] * t + frame.long()) * (h * w)  # (B, N)
-    index = base[..., None, None] + rows.clamp(0, h - 1)[..., :, None] * w + cols.clamp(0, w - 1)[..., None, :]
+    row_start = base[..., None] + rows.clamp(0, h - 1) * w  # (B, N, size + 1)
+    index = row_start[..., :, None] + cols.clamp(0, w - 1)[..., None, :]  # (B, N, size + 1, size + 1)
+    window = video.reshape(b * t * h * w, 3).index_select(0, index.reshape(-1)).reshape(*index.shape, 3).float()
     scale = 255.0 if video.dtype == torch.uint8 else 1.0
     mean, std = mean.to(device, torch.float32), std.to(device, torch.float32)
-    window = video.reshape(b * t * h * w, 3)[index].float()  # (B, N, size + 1, size + 1, 3)
-    window = (window / scale - mean) / std * inside[..., None]  # outside the image: 0, the mean colour
-    top = window[..., :-1, :, :] * (1 - fy) + window[..., 1:, :, :] * fy
-    return top[..., :-1, :] * (1 - fx) + top[..., 1:, :] * fx
+    inside = ((rows >= 0) & (rows < h))[..., :, None] & ((cols >= 0) & (cols < w))[..., None, :]
+    if device.type != "cpu" or not bool(inside.all()):  # (a host sync is cheap on the CPU only)
+        # Outside the image: the mean colour, which normalises to 0. Blending before normalising is the
+        # same affine map, with one pass over the smaller blended patch instead of three over the window.
+        window = torch.where(inside[..., None], window, mean * scale)
+    top = torch.lerp(window[..., :-1, :, :], window[..., 1:, :, :], fy)
+    patch = torch.lerp(top[..., :-1, :], top[..., 1:, :], fx)
+    return torch.addcmul(-mean / std, patch, 1.0 / (scale * std))  # (pixel / scale - mean) / std
 
 
 class QueryEmbedding(nn.Module):
