@@ -30,3 +30,13 @@ def test_the_best_point_of_a_voxel_wins():
     points = np.array([[0, 0, 0], [0.01, 0, 0], [0, 0.01, 0], [10, 10, 10], [10.01, 10, 10]], dtype=float)
     score = np.array([0.1, 0.9, 0.3, 0.8, 0.2])
     assert voxel_subsample(points, score, 2).tolist() == [1, 3]
+
+
+def test_the_voxel_count_of_the_side_search_equals_the_distinct_voxels():
+    from d4rt.geometry.voxel import _count_voxels, _first_per_voxel
+
+    points = np.random.default_rng(2).normal(size=(5000, 3)) * [3.0, 1.0, 0.2]
+    box = points.min(0), points.max(0)
+    for side in (0.05, 0.3, 2.0, 100.0):
+        assert _count_voxels(points, side, box) == len(_first_per_voxel(points, side))
+    assert _count_voxels(points[:0], 1.0, box) == 0
