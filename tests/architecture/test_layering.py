@@ -14,11 +14,12 @@ PACKAGE = Path(d4rt.__file__).parent
 # Lowest first: foundation, then the two engines (the model, the synthetic ground truth), the recipes
 # over any answerer, drawing, files, then the users of all of them: evaluation, training, speed and
 # memory measurement (d4rt bench) and the CLI.
-FOUNDATION = {"errors", "config", "devices", "progress", "geometry", "disk_array"}
+FOUNDATION = {"errors", "config", "devices", "progress", "geometry", "disk_array", "allocator"}
 ALLOWED = {
     "errors": set(),
     "progress": set(),
     "disk_array": set(),
+    "allocator": set(),
     "config": {"errors"},
     "devices": {"errors"},
     "geometry": {"errors"},

@@ -15,6 +15,7 @@ import importlib
 import sys
 import traceback
 
+from d4rt.allocator import reuse_large_buffers
 from d4rt.errors import UserError
 from d4rt.progress import set_progress
 
@@ -92,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     quiet = args.no_progress or args.no_progress_all
     previous = set_progress(False) if quiet else None
+    reuse_large_buffers()  # before the first large allocation: see d4rt.allocator
     try:
         return _run(args, args.debug or args.debug_all)
     finally:

@@ -23,6 +23,9 @@ MOVING_CAMERA_MOTIONS = ("orbit", "forward", "pan", "truck", "handheld")
 CAMERA_MOTIONS = (*MOVING_CAMERA_MOTIONS, "static", "walk")
 OBJECT_SHAPES = ("sphere", "box", "cylinder", "cone")
 MAX_BODIES = 255  # object ids are stored as uint8
+# Options added after synthetic-dynamic-v1 was frozen, with their defaults: a scene's description records them
+# only when set otherwise, so every earlier scene's description (and the benchmark's fingerprint) is unchanged.
+_LATER_OPTIONS = {"walk_fraction": 0.0}
 
 
 @dataclass
@@ -570,7 +573,8 @@ def sample_scene(seed: int, frames: int, height: int, width: int, options: Scene
         f = focal * camera.focal_scale(t)
         intrinsics[i] = [[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]]
 
-    info = {"seed": int(seed), "options": asdict(options), "environment": env_kind, "camera_motion": cam_kind,
+    recorded = {k: v for k, v in asdict(options).items() if k not in _LATER_OPTIONS or v != _LATER_OPTIONS[k]}
+    info = {"seed": int(seed), "options": recorded, "environment": env_kind, "camera_motion": cam_kind,
             "shake": shake, "zoom": zoom, "body_motion": kinds, "times": times.tolist()}
     description = SceneDescription(bodies, light, shadows=options.shadows, info=info)
     return SampledScene(description, intrinsics, cam_to_world, object_to_world)
