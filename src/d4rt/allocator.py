@@ -5,8 +5,8 @@ activations: 6 MB), over and over. glibc serves buffers above its mmap threshold
 the kernel and returns them on free, and trims the top of its heap once enough is free there: either
 way the next chunk's buffers start as untouched pages, and faulting them in cost more than the matrix
 products themselves (measured on the decoder's MLP, 4,096 queries, 2 threads: 5.3 ms, 1.9 ms with the
-settings below; `d4rt reconstruct` of 48 frames of 128x128: 14.4-15.3 s instead of 16.9-18.0 s, the
-same peak memory). With a fixed mmap threshold of 16 MB and a trim threshold of 32 MB, buffers of that size
+settings below; `d4rt reconstruct` of 48 frames of 128x128: 13.6-14.7 s instead of 16.9-18.0 s, about the
+same peak memory). With a fixed mmap threshold of 16 MB and a trim threshold of 64 MB, buffers of that size
 are reused from the heap; larger arrays (video frames, whole outputs) still come from, and go back to, the
 kernel.
 """
@@ -19,7 +19,7 @@ import os
 import sys
 
 MMAP_THRESHOLD = 16 << 20  # bytes: allocations up to this size are served from the heap
-TRIM_THRESHOLD = 32 << 20  # bytes of free memory at the top of the heap kept for reuse
+TRIM_THRESHOLD = 64 << 20  # bytes of free memory at the top of the heap kept for reuse
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # mallopt parameters (malloc.h)
 _ENVIRONMENT = ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_")
 
