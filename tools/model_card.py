@@ -60,7 +60,7 @@ def load_sources(directory: Path = SOURCES) -> dict:
     colmap = json.loads((directory / f"eval-{BENCHMARK}-colmap.json").read_text())
     sources[f"eval-{BENCHMARK}"]["methods"] += colmap["methods"]
     stages = sorted(directory.glob("training-stage*.json"), key=lambda p: int(p.stem.removeprefix("training-stage")))
-    sources["training"] = [(int(p.stem.removeprefix("training-stage")), json.loads(p.read_text())) for p in stages]
+    sources["training"] = [json.loads(p.read_text()) for p in stages]
     shipped = directory / "shipped-weights.json"
     sources["shipped"] = json.loads(shipped.read_text()) if shipped.is_file() else None
     return sources
@@ -75,20 +75,16 @@ def table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
 
 
-def training_section(stages: list[tuple[int, dict]], shipped: dict | None = None) -> str:
-    """stages: (stage number, training summary), in order; stages that were trained but not shipped, nor
-    trained further, have no file (their numbers are skipped)."""
-    first = stages[0][1]
+def training_section(stages: list[dict], shipped: dict | None = None) -> str:
+    first = stages[0]
     rows = [["model", f"`{first['preset']}` preset, {first['parameters'] / 1e6:.2f}M parameters, "
                       f"max_frames {first['max_frames']}"]]
-    for number, stage in stages:
+    for number, stage in enumerate(stages, 1):
         rows += [[f"stage {number}", stage_summary(stage, number)]]
-    steps = sum(s["steps"] for _, s in stages)
-    seconds = sum(s["training_seconds"] for _, s in stages)
+    steps = sum(s["steps"] for s in stages)
+    seconds = sum(s["training_seconds"] for s in stages)
     rows += [["total", f"{steps:,} steps, {seconds / 60:.0f} min of optimiser steps"]]
-    if shipped is not None and len(shipped["stages"]) == 1:
-        rows += [["shipped weights", f"stage {shipped['stages'][0]}'s last weights (`{shipped['command']}`)"]]
-    elif shipped is not None:
+    if shipped is not None:
         parts = " + ".join(f"{w:g} x stage {s}" for s, w in zip(shipped["stages"], shipped["weights"]))
         rows += [["shipped weights", f"the average {parts} (`{shipped['command']}`): no further training"]]
     return table(["", ""], rows)
