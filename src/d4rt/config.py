@@ -71,6 +71,12 @@ class D4RTConfig:
         decoder_dim, decoder_depth, decoder_heads, decoder_mlp_dim: as for the encoder.
         confidence_activation: ``"softplus"`` (c = softplus(x), any positive value) or
             ``"one_plus_exp"`` (c = 1 + exp(x), DUSt3R's choice, c >= 1) (not in paper).
+        relative_pose_head: the points head answers in camera t_src and a per-query relative-pose head
+            (rotation in the 6D form, translation) moves them, and motion and normals, into camera t_cam;
+            identity where t_cam = t_src (not in paper, which regresses the point in camera t_cam
+            directly). Why: a rotation applied to a point is bilinear in (pose, point), which an MLP
+            approximates poorly; every tiny model trained on the CPU without it ignored t_cam entirely
+            (docs/training.md). Its layer starts at zero, i.e. at the identity pose.
 
     Runtime
         layer_norm_eps: epsilon of every LayerNorm (1e-6, as VideoMAE v2).
@@ -106,6 +112,7 @@ class D4RTConfig:
     decoder_heads: int = 3
     decoder_mlp_dim: int = 768
     confidence_activation: str = "softplus"
+    relative_pose_head: bool = False
     # runtime
     layer_norm_eps: float = 1e-6
     init_std: float = 0.02
@@ -156,7 +163,7 @@ class D4RTConfig:
             value = getattr(self, name)
             if not _is_number(value) or not value > 0:
                 raise UserError(f"config field {name} must be a positive number, got {value!r}")
-        for name in ("gradient_checkpointing", "cache_scene_kv"):
+        for name in ("gradient_checkpointing", "cache_scene_kv", "relative_pose_head"):
             if not isinstance(getattr(self, name), bool):
                 raise UserError(f"config field {name} must be true or false, got {getattr(self, name)!r}")
         if min(self.pixel_std) <= 0:

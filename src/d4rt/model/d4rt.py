@@ -66,6 +66,7 @@ class D4RT(nn.Module):
         for name, param in self.named_parameters():
             if name.endswith(("q_bias", "v_bias")):
                 nn.init.zeros_(param)
+        self.decoder.heads.reset_relative_pose()
 
     # ------------------------------------------------------------------------------------ core steps
     def encode_tokens(self, video: torch.Tensor, aspect_ratio: torch.Tensor) -> torch.Tensor:
@@ -80,7 +81,9 @@ class D4RT(nn.Module):
                share_sources: bool = False) -> dict[str, torch.Tensor]:
         """Checked ``queries: (B, N, 5)`` + per-layer scene keys/values -> dict of ``(B, N, ...)``.
         ``share_sources``: embed each run of equal (u, v, t_src) once (see :class:`QueryEmbedding`)."""
-        return self.decoder(self.query_embedding(queries, patch_video, share_sources), scene_kv)
+        tokens = self.query_embedding(queries, patch_video, share_sources)
+        same_camera = queries[..., 2].round() == queries[..., 4].round() if self.config.relative_pose_head else None
+        return self.decoder(tokens, scene_kv, same_camera)
 
     # ------------------------------------------------------------------------------------ training
     def forward(

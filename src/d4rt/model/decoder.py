@@ -36,29 +36,67 @@ class CrossAttentionBlock(nn.Module):
         return x + self.mlp(self.norm2(x))
 
 
+def rotation_from_6d(d6: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices ``(..., 3, 3)`` from the 6D form ``(..., 6)`` (Zhou et al. 2019): the two
+    3-vectors are Gram-Schmidt orthonormalised into the first two columns, the third is their cross
+    product. Continuous, unlike quaternions or Euler angles, so a regression target without seams."""
+    b1 = F.normalize(d6[..., :3], dim=-1, eps=1e-6)
+    a2 = d6[..., 3:]
+    b2 = F.normalize(a2 - (b1 * a2).sum(-1, keepdim=True) * b1, dim=-1, eps=1e-6)
+    return torch.stack([b1, b2, torch.linalg.cross(b1, b2)], dim=-1)
+
+
+# The 6D form of the identity rotation: the relative-pose head's output is added to it.
+_IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
+
+
 class PredictionHeads(nn.Module):
     """Final LayerNorm and one linear head per output, then each output's activation.
 
-    ``forward(x: (B, N, dim)) -> dict`` of (B, N, ...) float32 tensors:
+    ``forward(x: (B, N, dim), same_camera: (B, N) bool | None) -> dict`` of (B, N, ...) float32 tensors:
         points (3): raw. uv (2): raw (a point may leave the image). visibility_logit (1 -> squeezed) and
         visibility = sigmoid(logit). motion (3): raw. normals (3): L2-normalised.
         confidence (1 -> squeezed): positive, softplus or 1 + exp (config ``confidence_activation``).
+
+    With ``relative_pose_head`` the points, motion and normals heads answer in camera t_src and a
+    ninth-channel head (6D rotation offset from the identity, then translation) maps them into camera
+    t_cam: ``points = R p + t``, ``motion = R m``, ``normals = R n``; queries with ``same_camera``
+    (t_cam = t_src, which ``same_camera`` must then give) keep R = I, t = 0 exactly.
 
     Computed in float32 whatever the autocast or parameter dtype: 13 numbers per query cost nothing, while
     bf16's 8-bit mantissa would round a depth of 10 to steps of 1/16 and quantise every loss input.
     """
 
-    def __init__(self, dim: int, eps: float, confidence_activation: str):
+    def __init__(self, dim: int, eps: float, confidence_activation: str, relative_pose_head: bool = False):
         super().__init__()
         self.norm = nn.LayerNorm(dim, eps=eps)
         self.heads = nn.ModuleDict({name: nn.Linear(dim, size) for name, size in HEAD_CHANNELS.items()})
         self.confidence_activation = confidence_activation
+        self.relative_pose = nn.Linear(dim, 9) if relative_pose_head else None
 
-    def forward(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+    def reset_relative_pose(self) -> None:
+        """Zero the relative-pose layer: every query starts at the identity pose (a model trained without
+        the head answers the same before fine-tuning)."""
+        if self.relative_pose is not None:
+            nn.init.zeros_(self.relative_pose.weight)
+            nn.init.zeros_(self.relative_pose.bias)
+
+    def forward(self, x: torch.Tensor, same_camera: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         with torch.autocast(device_type=x.device.type, enabled=False):
             x = F.layer_norm(x.float(), self.norm.normalized_shape, self.norm.weight.float(),
                              self.norm.bias.float(), self.norm.eps)
             raw = {name: F.linear(x, head.weight.float(), head.bias.float()) for name, head in self.heads.items()}
+            if self.relative_pose is not None:
+                if same_camera is None:
+                    raise ValueError("relative_pose_head needs same_camera (t_cam == t_src per query)")
+                pose = F.linear(x, self.relative_pose.weight.float(), self.relative_pose.bias.float())
+                keep = same_camera[..., None]
+                d6 = torch.where(keep, 0.0, pose[..., :6]) + x.new_tensor(_IDENTITY_6D)
+                rotation = rotation_from_6d(d6)
+                translation = torch.where(keep, 0.0, pose[..., 6:])
+                raw["points"] = (rotation @ raw["points"][..., None])[..., 0] + translation
+                raw["motion"] = (rotation @ raw["motion"][..., None])[..., 0]
+                raw["normals"] = (rotation @ raw["normals"][..., None])[..., 0]
         logit = raw["visibility_logit"].squeeze(-1)
         conf = raw["confidence"].squeeze(-1)
         if self.confidence_activation == "softplus":
@@ -91,17 +129,20 @@ class QueryDecoder(nn.Module):
                                 config.decoder_mlp_dim, config.layer_norm_eps)
             for _ in range(config.decoder_depth)
         )
-        self.heads = PredictionHeads(config.decoder_dim, config.layer_norm_eps, config.confidence_activation)
+        self.heads = PredictionHeads(config.decoder_dim, config.layer_norm_eps, config.confidence_activation,
+                                     config.relative_pose_head)
 
     def project_scene(self, tokens: torch.Tensor) -> SceneKV:
         """Keys and values of every block: a list of ``decoder_depth`` pairs ``(B, heads, M, d)``."""
         return [block.attn.project_context(tokens) for block in self.blocks]
 
-    def forward(self, query_tokens: torch.Tensor, scene_kv: SceneKV) -> dict[str, torch.Tensor]:
-        """``query_tokens: (B, N, decoder_dim)``, ``scene_kv`` from :meth:`project_scene` -> dict of
-        ``(B, N, ...)`` outputs (see :class:`PredictionHeads`)."""
+    def forward(self, query_tokens: torch.Tensor, scene_kv: SceneKV,
+                same_camera: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """``query_tokens: (B, N, decoder_dim)``, ``scene_kv`` from :meth:`project_scene`, ``same_camera:
+        (B, N)`` bool (t_cam == t_src; needed with ``relative_pose_head``) -> dict of ``(B, N, ...)``
+        outputs (see :class:`PredictionHeads`)."""
         recompute = self.config.gradient_checkpointing and self.training
         x = query_tokens
         for block, (keys, values) in zip(self.blocks, scene_kv, strict=True):
             x = run_block(block, x, keys, values, recompute=recompute)
-        return self.heads(x)
+        return self.heads(x, same_camera)

@@ -117,10 +117,15 @@ class Trainer:
         model = D4RT(self.model_config)
         if spec.init_from is not None:
             pretrained = D4RT.from_pretrained(spec.init_from)
-            if pretrained.config != self.model_config:
+            state = pretrained.state_dict()
+            adds_pose_head = self.model_config.relative_pose_head and not pretrained.config.relative_pose_head
+            if pretrained.config.replace(relative_pose_head=self.model_config.relative_pose_head) != \
+                    self.model_config or pretrained.config.relative_pose_head > self.model_config.relative_pose_head:
                 raise UserError(f"model.init_from {spec.init_from} has a different model config than model.preset "
                                 f"{spec.preset!r} with its overrides")
-            model.load_state_dict(pretrained.state_dict(), strict=True)
+            if adds_pose_head:  # the one part the checkpoint lacks starts at its zero (identity-pose) initialisation
+                state.update({k: v for k, v in model.state_dict().items() if k.startswith("decoder.heads.relative_pose.")})
+            model.load_state_dict(state, strict=True)
         if spec.videomae is not None:
             from d4rt.model.videomae import load_videomae_v2
 
