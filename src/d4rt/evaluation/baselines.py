@@ -5,6 +5,9 @@
   checks the recipes and the harness end to end; elsewhere it returns the ground-truth arrays.
 - ``constant-depth``: the same depth at every pixel of every frame (1.0; after per-sequence scale
   alignment it is the best single depth for the sequence). The floor any depth method must beat.
+- ``static-camera``: every frame's camera at the first one's pose (identity camera-to-world). After the
+  Sim(3) alignment of the pose metrics its ATE is the spread of the true camera centres about their mean:
+  the floor any pose method must beat (a model that ignores camera motion scores about this).
 - ``colmap``: COLMAP incremental SfM through pycolmap, camera poses only (``d4rt.evaluation.colmap_baseline``).
 """
 
@@ -17,7 +20,7 @@ from d4rt.evaluation.predictions import Prediction, Predictor, ReconstructionPre
 from d4rt.evaluation.sequence import EvalSequence
 from d4rt.reconstruction import Reconstruction
 
-BASELINES = ("oracle", "constant-depth", "colmap")
+BASELINES = ("oracle", "constant-depth", "static-camera", "colmap")
 
 
 class OraclePredictor:
@@ -47,11 +50,22 @@ class ConstantDepthPredictor:
         return Prediction(depth=np.ones((sequence.num_frames, *sequence.image_size), dtype=np.float32))
 
 
+class StaticCameraPredictor:
+    """Identity camera-to-world for every frame; predicts nothing else."""
+
+    name = "static-camera"
+
+    def predict(self, sequence: EvalSequence, tasks: set[str]) -> Prediction:
+        return Prediction(cam_to_world=np.broadcast_to(np.eye(4), (sequence.num_frames, 4, 4)).copy())
+
+
 def make_baseline(name: str) -> Predictor:
     if name == "oracle":
         return OraclePredictor()
     if name == "constant-depth":
         return ConstantDepthPredictor()
+    if name == "static-camera":
+        return StaticCameraPredictor()
     if name == "colmap":
         from d4rt.evaluation.colmap_baseline import ColmapPredictor
 

@@ -1,0 +1,96 @@
+"""Does a model use t_cam? (issue 14's stage-9 diagnosis)
+
+    python tools/camera_probe.py CHECKPOINT [CHECKPOINT ...] --out probe.json
+
+For 16 synthetic clips drawn like synthetic-dynamic-v1's (every 3rd clip definition) from seeds the benchmark
+never uses (8,000,000 + index; 16 frames at time stride 2), an 8 x 8 grid of every frame i is asked twice, in
+its own camera (i, i, i) and in camera 0 (i, i, 0): the camera recipe's question. Per clip and frame, against
+the clip's exact oracle:
+
+- ``rotation``: the angle of the rigid fit between the two answers (what ``Reconstruction.cameras`` turns into
+  the pose of frame i) against the true rotation between cameras i and 0, in degrees;
+- ``change``: how far the answer moves when t_cam goes from i to 0, relative to the point's distance
+  (mean |P(i,i,0) - P(i,i,i)| / mean |P(i,i,i)|), model against truth.
+
+A model that ignores t_cam recovers no rotation and its answer does not move. Reported: per clip the last
+frame's figures, and over all frames with a true rotation above 5 degrees the median of model / truth for both
+(1 = the full camera motion recovered, 0 = none). Writes JSON and prints it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from d4rt.evaluation.metrics.pose import rotation_angle
+from d4rt.evaluation.synthetic_benchmark import clip_specs
+from d4rt.geometry.camera import cell_centres_uv
+from d4rt.model import D4RT
+from d4rt.reconstruction.cameras import relative_poses
+from d4rt.reconstruction.query_patterns import grid_queries
+from d4rt.synthetic import render_clip
+
+HELD_OUT_SEED = 8_000_000
+FRAMES, TIME_STRIDE, GRID = 16, 2, 8
+MIN_ROTATION = 5.0  # degrees: frames with less true rotation say little about the ratio
+
+
+def own_and_first_camera(answer, num_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """Grid points of every frame i in camera i and in camera 0: two (T, GRID^2, 3) arrays."""
+    frames = np.arange(num_frames)
+    uv = cell_centres_uv(GRID)
+    queries = np.stack([grid_queries(uv, frames, frames, frames),
+                        grid_queries(uv, frames, frames, np.zeros_like(frames))], 1).reshape(-1, 5)
+    points = np.asarray(answer(queries)["points"], dtype=np.float64)
+    return points[0::2].reshape(num_frames, -1, 3), points[1::2].reshape(num_frames, -1, 3)
+
+
+def camera_figures(here: np.ndarray, there: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per frame: rotation angle (degrees) of the rigid fit here -> there, and the relative change."""
+    pose = relative_poses(here, there, np.ones(here.shape[:2]))
+    change = np.linalg.norm(there - here, axis=-1).mean(1) / np.linalg.norm(here, axis=-1).mean(1)
+    return np.degrees(rotation_angle(pose[:, :3, :3])), change
+
+
+def probe(model: D4RT, clips: list) -> dict:
+    rows, rot_ratio, change_ratio = [], [], []
+    for name, clip in clips:
+        with torch.no_grad():
+            model_rot, model_change = camera_figures(*own_and_first_camera(model.encode(clip.rgb).query, FRAMES))
+        true_rot, true_change = camera_figures(*own_and_first_camera(clip.oracle.query, FRAMES))
+        moving = true_rot > MIN_ROTATION
+        rot_ratio += list(model_rot[moving] / true_rot[moving])
+        change_ratio += list(model_change[moving] / true_change[moving])
+        rows.append({"clip": name, "true_rotation": round(float(true_rot[-1]), 2),
+                     "rotation": round(float(model_rot[-1]), 2), "true_change": round(float(true_change[-1]), 4),
+                     "change": round(float(model_change[-1]), 4)})
+    return {"median_rotation_ratio": round(float(np.median(rot_ratio)), 3) if rot_ratio else None,
+            "median_change_ratio": round(float(np.median(change_ratio)), 3) if change_ratio else None,
+            "frames_counted": len(rot_ratio), "clips": rows}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoints", nargs="+")
+    parser.add_argument("--out", required=True)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    specs = [replace(s, seed=HELD_OUT_SEED + s.index) for s in clip_specs()[::3]]
+    clips = [(f"held_out_{s.index:02d}", render_clip(s.seed, FRAMES, s.height, s.width,
+                                                      **(vars(s.options) | {"time_stride": TIME_STRIDE})))
+             for s in specs]
+    report = {"frames": FRAMES, "time_stride": TIME_STRIDE, "held_out_seed": HELD_OUT_SEED,
+              "models": {str(c): probe(D4RT.from_pretrained(c), clips) for c in args.checkpoints}}
+    Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
+    for name, row in report["models"].items():
+        print(name, "rotation recovered (median model/true):", row["median_rotation_ratio"],
+              "answer change:", row["median_change_ratio"], f"({row['frames_counted']} frames)")
+
+
+if __name__ == "__main__":
+    main()
