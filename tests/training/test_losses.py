@@ -5,6 +5,7 @@ import math
 import pytest
 import torch
 
+from d4rt.errors import UserError
 from d4rt.training import LossConfig, d4rt_loss, log_compress, mean_depth, point_loss
 
 LOG2 = math.log(2.0)
@@ -200,3 +201,55 @@ def test_loss_config_rejects_bad_weights():
         LossConfig(weight_2d=-1.0).validate()
     with pytest.raises(UserError, match="weight_confidence"):
         LossConfig(weight_confidence=0.0).validate()
+
+
+def _pose_case(weight_pose=1.0):
+    """A batch of 2 clips (3 frames) whose head outputs are exactly the true relative poses."""
+    from d4rt.model.decoder import rotation_from_6d
+
+    torch.manual_seed(0)
+    b, n, t = 2, 40, 3
+    c2w = torch.eye(4, dtype=torch.float64).repeat(b, t, 1, 1)
+    c2w[..., :3, :3] = rotation_from_6d(torch.randn(b, t, 6, dtype=torch.float64))
+    c2w[..., :3, 3] = torch.randn(b, t, 3, dtype=torch.float64)
+    queries = torch.cat([torch.rand(b, n, 2), torch.randint(0, t, (b, n, 3)).float()], -1)
+    clip = torch.arange(b)[:, None]
+    t_src, t_cam = queries[..., 2].long(), queries[..., 4].long()
+    relative = torch.linalg.inv(c2w[clip, t_cam]) @ c2w[clip, t_src]
+    points = torch.randn(b, n, 3) + torch.tensor([0.0, 0.0, 4.0])
+    batch = {"points": points, "uv": torch.rand(b, n, 2), "visibility": torch.ones(b, n), "motion": torch.zeros(b, n, 3),
+             "normals": torch.nn.functional.normalize(torch.randn(b, n, 3), dim=-1), "valid": torch.ones(b, n, dtype=torch.bool),
+             "uv_valid": torch.ones(b, n, dtype=torch.bool), "queries": queries, "cam_to_world": c2w.float()}
+    pred = {"points": 2.0 * points, "uv": batch["uv"], "visibility_logit": torch.zeros(b, n), "motion": torch.zeros(b, n, 3),
+            "normals": batch["normals"], "confidence": torch.ones(b, n),
+            # the prediction's units are twice the target's: its translation too
+            "relative_rotation": relative[..., :3, :3].float(), "relative_translation": 2.0 * relative[..., :3, 3].float()}
+    return pred, batch, LossConfig(weight_pose=weight_pose), relative
+
+
+def test_pose_loss_is_zero_for_the_true_relative_poses_in_any_scale():
+    pred, batch, config, _ = _pose_case()
+    _, terms = d4rt_loss(pred, batch, config)
+    assert terms["pose_rotation"] < 1e-5 and terms["pose_translation"] < 1e-5
+
+
+def test_pose_loss_counts_only_queries_that_change_camera():
+    pred, batch, config, relative = _pose_case()
+    moved = batch["queries"][..., 2] != batch["queries"][..., 4]
+    assert 0 < int(moved.sum()) < moved.numel()
+    pred["relative_translation"] = pred["relative_translation"] + torch.tensor([0.0, 0.0, 8.0])  # 2 target units
+    pred["relative_translation"][moved] = 2.0 * relative[..., :3, 3][moved].float()  # right where it counts
+    _, terms = d4rt_loss(pred, batch, config)
+    assert terms["pose_translation"] < 1e-5
+    pred["relative_translation"][moved] += torch.tensor([0.0, 0.0, 8.0])
+    _, terms = d4rt_loss(pred, batch, config)
+    mean_z = batch["points"][..., 2].abs().mean(1)
+    assert torch.isclose(terms["pose_translation"], (4.0 / mean_z)[torch.nonzero(moved)[:, 0]].mean(), rtol=1e-4)
+
+
+def test_pose_loss_off_by_default_and_refused_without_the_head():
+    pred, batch, config, _ = _pose_case()
+    assert "pose_rotation" not in d4rt_loss(pred, batch, LossConfig())[1]
+    del pred["relative_rotation"]
+    with pytest.raises(UserError, match="relative_pose_head"):
+        d4rt_loss(pred, batch, config)

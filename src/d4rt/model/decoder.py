@@ -61,7 +61,9 @@ class PredictionHeads(nn.Module):
     With ``relative_pose_head`` the points, motion and normals heads answer in camera t_src and a
     ninth-channel head (6D rotation offset from the identity, then translation) maps them into camera
     t_cam: ``points = R p + t``, ``motion = R m``, ``normals = R n``; queries with ``same_camera``
-    (t_cam = t_src, which ``same_camera`` must then give) keep R = I, t = 0 exactly.
+    (t_cam = t_src, which ``same_camera`` must then give) keep R = I, t = 0 exactly. R and t are also
+    returned, as ``relative_rotation (B, N, 3, 3)`` and ``relative_translation (B, N, 3)`` (for the
+    optional pose loss, :class:`d4rt.training.losses.LossConfig` ``weight_pose``).
 
     Computed in float32 whatever the autocast or parameter dtype: 13 numbers per query cost nothing, while
     bf16's 8-bit mantissa would round a depth of 10 to steps of 1/16 and quantise every loss input.
@@ -97,13 +99,15 @@ class PredictionHeads(nn.Module):
                 raw["points"] = (rotation @ raw["points"][..., None])[..., 0] + translation
                 raw["motion"] = (rotation @ raw["motion"][..., None])[..., 0]
                 raw["normals"] = (rotation @ raw["normals"][..., None])[..., 0]
+                raw["relative_rotation"], raw["relative_translation"] = rotation, translation
         logit = raw["visibility_logit"].squeeze(-1)
         conf = raw["confidence"].squeeze(-1)
         if self.confidence_activation == "softplus":
             confidence = F.softplus(conf) + 1e-6  # strictly positive: the loss takes log(c)
         else:
             confidence = 1.0 + torch.exp(conf.clamp(max=80.0))  # clamp: exp overflow guard, not a range limit
-        return {
+        pose = {k: raw[k] for k in ("relative_rotation", "relative_translation") if k in raw}
+        return pose | {
             "points": raw["points"],
             "uv": raw["uv"],
             "visibility": torch.sigmoid(logit),

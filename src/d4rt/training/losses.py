@@ -38,6 +38,12 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   in the model's own scale. The prediction's scale is detached there: the free overall scale of the
   points is fixed by L3D alone. ``normalise_motion=False`` compares raw vectors.
 - *Normals*: ``1 - cos(pred, target)``. *Visibility*: binary cross-entropy on the model's logit.
+- *Pose* (not in paper; ``weight_pose`` > 0, only for a model with ``relative_pose_head``): the head's
+  rotation and translation from camera t_src to camera t_cam against the true ones from the batch's
+  ``cam_to_world``, on every query with t_cam != t_src: L1 over the 9 rotation-matrix entries plus L1 of
+  the translation, each translation divided by its own side's per-clip mean depth (the prediction's
+  detached, as for motion). Why: every tiny model trained on the paper's losses alone ignored t_cam; the
+  points loss mixes a query's camera motion with its depth error, this term names the motion directly.
 """
 
 from __future__ import annotations
@@ -71,10 +77,11 @@ class LossConfig:
     weight_normal: float = 0.5
     confidence_weighting: bool = True
     normalise_motion: bool = True
+    weight_pose: float = 0.0
 
     def validate(self) -> None:
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
-                     "weight_normal"):
+                     "weight_normal", "weight_pose"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
                 raise UserError(f"loss {name} must be a number >= 0, got {value!r}")
@@ -165,6 +172,12 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
 
     total = (point_term + config.weight_2d * l2d + config.weight_visibility * lvis
              + config.weight_motion * lmotion + config.weight_normal * lnormal)
+    pose_terms = {}
+    if config.weight_pose > 0:
+        lrot, ltrans = pose_loss(pred, batch, mean_depth(p["points"], valid).detach(),
+                                 mean_depth(target_points, valid))
+        total = total + config.weight_pose * (lrot + ltrans)
+        pose_terms = {"pose_rotation": lrot, "pose_translation": ltrans}
     terms = {
         "3d": masked_mean(l3d, valid),
         "3d_confident": weighted_3d if config.confidence_weighting else masked_mean(confidence * l3d, valid),
@@ -177,8 +190,28 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         "valid_fraction": valid.float().mean(),
         "uv_fraction": uv_valid.float().mean(),
         "total": total,
-    }
+    } | pose_terms
     return total, {k: v.detach() for k, v in terms.items()}
+
+
+def pose_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], pred_scale: torch.Tensor,
+              target_scale: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rotation and translation terms of the pose loss (module docstring), each a mean over the queries
+    with t_cam != t_src. pred: ``relative_rotation (B,N,3,3)``, ``relative_translation (B,N,3)``; batch:
+    ``queries (B,N,5)``, ``cam_to_world (B,T,4,4)``; scales: (B,) per-clip mean depths."""
+    if "relative_rotation" not in pred:
+        raise UserError("loss weight_pose > 0 needs a model with relative_pose_head: true")
+    if "cam_to_world" not in batch:
+        raise UserError("loss weight_pose > 0 needs cam_to_world in every training sample")
+    queries, c2w = batch["queries"], batch["cam_to_world"].double()
+    t_src, t_cam = queries[..., 2].round().long(), queries[..., 4].round().long()
+    moved = t_src != t_cam
+    clip = torch.arange(c2w.shape[0], device=c2w.device)[:, None]
+    relative = (torch.linalg.inv(c2w[clip, t_cam]) @ c2w[clip, t_src]).float()  # camera t_src -> camera t_cam
+    rotation_error = (pred["relative_rotation"].float() - relative[..., :3, :3]).abs().sum((-1, -2))
+    translation_error = (pred["relative_translation"].float() / pred_scale[:, None, None]
+                         - relative[..., :3, 3] / target_scale[:, None, None]).abs().sum(-1)
+    return masked_mean(rotation_error, moved), masked_mean(translation_error, moved)
 
 
 def _zero_where_missing(target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
