@@ -76,7 +76,8 @@ class D4RTConfig:
             identity where t_cam = t_src (not in paper, which regresses the point in camera t_cam
             directly). Why: a rotation applied to a point is bilinear in (pose, point), which an MLP
             approximates poorly; every tiny model trained on the CPU without it ignored t_cam entirely
-            (docs/training.md). Its layer starts at zero, i.e. at the identity pose.
+            (docs/training.md). Its layer is initialised like every other linear layer: started at zero
+            (the identity pose) it stayed near zero and passed no gradient back to the encoder.
 
     Runtime
         layer_norm_eps: epsilon of every LayerNorm (1e-6, as VideoMAE v2).

@@ -66,7 +66,6 @@ class D4RT(nn.Module):
         for name, param in self.named_parameters():
             if name.endswith(("q_bias", "v_bias")):
                 nn.init.zeros_(param)
-        self.decoder.heads.reset_relative_pose()
 
     # ------------------------------------------------------------------------------------ core steps
     def encode_tokens(self, video: torch.Tensor, aspect_ratio: torch.Tensor) -> torch.Tensor:

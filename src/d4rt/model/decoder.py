@@ -76,13 +76,6 @@ class PredictionHeads(nn.Module):
         self.confidence_activation = confidence_activation
         self.relative_pose = nn.Linear(dim, 9) if relative_pose_head else None
 
-    def reset_relative_pose(self) -> None:
-        """Zero the relative-pose layer: every query starts at the identity pose (a model trained without
-        the head answers the same before fine-tuning)."""
-        if self.relative_pose is not None:
-            nn.init.zeros_(self.relative_pose.weight)
-            nn.init.zeros_(self.relative_pose.bias)
-
     def forward(self, x: torch.Tensor, same_camera: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         with torch.autocast(device_type=x.device.type, enabled=False):
             x = F.layer_norm(x.float(), self.norm.normalized_shape, self.norm.weight.float(),

@@ -123,7 +123,7 @@ class Trainer:
                     self.model_config or pretrained.config.relative_pose_head > self.model_config.relative_pose_head:
                 raise UserError(f"model.init_from {spec.init_from} has a different model config than model.preset "
                                 f"{spec.preset!r} with its overrides")
-            if adds_pose_head:  # the one part the checkpoint lacks starts at its zero (identity-pose) initialisation
+            if adds_pose_head:  # the one part the checkpoint lacks keeps its fresh (seeded) initialisation
                 state.update({k: v for k, v in model.state_dict().items() if k.startswith("decoder.heads.relative_pose.")})
             model.load_state_dict(state, strict=True)
         if spec.videomae is not None:
