@@ -10,11 +10,14 @@ the clip's exact oracle:
 - ``rotation``: the angle of the rigid fit between the two answers (what ``Reconstruction.cameras`` turns into
   the pose of frame i) against the true rotation between cameras i and 0, in degrees;
 - ``change``: how far the answer moves when t_cam goes from i to 0, relative to the point's distance
-  (mean |P(i,i,0) - P(i,i,i)| / mean |P(i,i,i)|), model against truth.
+  (mean |P(i,i,0) - P(i,i,i)| / mean |P(i,i,i)|), model against truth;
+- ``rotation_error``: the angle between the fitted and the true rotation, in degrees (a camera that never
+  moves scores the true rotation itself).
 
 A model that ignores t_cam recovers no rotation and its answer does not move. Reported: per clip the last
 frame's figures, and over all frames with a true rotation above 5 degrees the median of model / truth for both
-(1 = the full camera motion recovered, 0 = none). Writes JSON and prints it.
+(1 = the full camera motion recovered, 0 = none), and the median rotation error over all frames but the
+first beside the median true rotation. Writes JSON and prints it.
 """
 
 from __future__ import annotations
@@ -50,28 +53,33 @@ def own_and_first_camera(answer, num_frames: int) -> tuple[np.ndarray, np.ndarra
     return points[0::2].reshape(num_frames, -1, 3), points[1::2].reshape(num_frames, -1, 3)
 
 
-def camera_figures(here: np.ndarray, there: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per frame: rotation angle (degrees) of the rigid fit here -> there, and the relative change."""
-    pose = relative_poses(here, there, np.ones(here.shape[:2]))
+def camera_figures(here: np.ndarray, there: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame: rotation (3, 3) of the rigid fit here -> there, its angle (degrees), the relative change."""
+    rotation = relative_poses(here, there, np.ones(here.shape[:2]))[:, :3, :3]
     change = np.linalg.norm(there - here, axis=-1).mean(1) / np.linalg.norm(here, axis=-1).mean(1)
-    return np.degrees(rotation_angle(pose[:, :3, :3])), change
+    return rotation, np.degrees(rotation_angle(rotation)), change
 
 
 def probe(model: D4RT, clips: list) -> dict:
-    rows, rot_ratio, change_ratio = [], [], []
+    rows, rot_ratio, change_ratio, errors, truths = [], [], [], [], []
     for name, clip in clips:
         with torch.no_grad():
-            model_rot, model_change = camera_figures(*own_and_first_camera(model.encode(clip.rgb).query, FRAMES))
-        true_rot, true_change = camera_figures(*own_and_first_camera(clip.oracle.query, FRAMES))
+            model_r, model_rot, model_change = camera_figures(*own_and_first_camera(model.encode(clip.rgb).query, FRAMES))
+        true_r, true_rot, true_change = camera_figures(*own_and_first_camera(clip.oracle.query, FRAMES))
+        error = np.degrees(rotation_angle(np.swapaxes(model_r, 1, 2) @ true_r))
+        errors += list(error[1:])
+        truths += list(true_rot[1:])
         moving = true_rot > MIN_ROTATION
         rot_ratio += list(model_rot[moving] / true_rot[moving])
         change_ratio += list(model_change[moving] / true_change[moving])
         rows.append({"clip": name, "true_rotation": round(float(true_rot[-1]), 2),
-                     "rotation": round(float(model_rot[-1]), 2), "true_change": round(float(true_change[-1]), 4),
+                     "rotation": round(float(model_rot[-1]), 2), "rotation_error": round(float(error[-1]), 2),
+                     "true_change": round(float(true_change[-1]), 4),
                      "change": round(float(model_change[-1]), 4)})
     return {"median_rotation_ratio": round(float(np.median(rot_ratio)), 3) if rot_ratio else None,
             "median_change_ratio": round(float(np.median(change_ratio)), 3) if change_ratio else None,
-            "frames_counted": len(rot_ratio), "clips": rows}
+            "frames_counted": len(rot_ratio), "median_rotation_error": round(float(np.median(errors)), 2),
+            "median_true_rotation": round(float(np.median(truths)), 2), "clips": rows}
 
 
 def main() -> None:
@@ -89,7 +97,8 @@ def main() -> None:
     Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
     for name, row in report["models"].items():
         print(name, "rotation recovered (median model/true):", row["median_rotation_ratio"],
-              "answer change:", row["median_change_ratio"], f"({row['frames_counted']} frames)")
+              "answer change:", row["median_change_ratio"], f"({row['frames_counted']} frames);",
+              "rotation error", row["median_rotation_error"], "deg vs true rotation", row["median_true_rotation"])
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
 from d4rt.model import D4RT
 from d4rt.model.decoder import _IDENTITY_6D, rotation_from_6d
@@ -16,9 +17,22 @@ from d4rt.training.config import TrainConfig
 from d4rt.training.distributed import DistributedContext
 from d4rt.training.trainer import Trainer
 
-from conftest import make_model, random_queries, random_video
-
 POSE_KEYS = ("decoder.heads.relative_pose.weight", "decoder.heads.relative_pose.bias")
+
+
+def make_model(**overrides) -> D4RT:
+    torch.manual_seed(1234)
+    return D4RT(D4RTConfig.preset("tiny", **overrides)).eval()
+
+
+def random_video(frames: int, height: int, width: int) -> torch.Tensor:
+    return torch.randint(0, 256, (frames, height, width, 3), generator=torch.Generator().manual_seed(0),
+                         dtype=torch.uint8)
+
+
+def random_queries(n: int, frames: int, seed: int = 0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    return torch.cat([torch.rand(n, 2, generator=g), torch.randint(0, frames, (n, 3), generator=g).float()], 1)
 
 
 def _rotation(axis, degrees: float) -> torch.Tensor:
