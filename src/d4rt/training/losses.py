@@ -54,6 +54,7 @@ import torch
 import torch.nn.functional as F
 
 from d4rt.errors import UserError
+from d4rt.geometry.transforms import invert_rigid
 
 # Prediction and batch keys the loss reads.
 PREDICTION_KEYS = ("points", "uv", "visibility_logit", "motion", "normals", "confidence")
@@ -207,7 +208,7 @@ def pose_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], pre
     t_src, t_cam = queries[..., 2].round().long(), queries[..., 4].round().long()
     moved = t_src != t_cam
     clip = torch.arange(c2w.shape[0], device=c2w.device)[:, None]
-    relative = (torch.linalg.inv(c2w[clip, t_cam]) @ c2w[clip, t_src]).float()  # camera t_src -> camera t_cam
+    relative = (invert_rigid(c2w)[clip, t_cam] @ c2w[clip, t_src]).float()  # camera t_src -> camera t_cam
     rotation_error = (pred["relative_rotation"].float() - relative[..., :3, :3]).abs().sum((-1, -2))
     translation_error = (pred["relative_translation"].float() / pred_scale[:, None, None]
                          - relative[..., :3, 3] / target_scale[:, None, None]).abs().sum(-1)

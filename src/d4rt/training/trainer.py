@@ -118,12 +118,12 @@ class Trainer:
         if spec.init_from is not None:
             pretrained = D4RT.from_pretrained(spec.init_from)
             state = pretrained.state_dict()
-            adds_pose_head = self.model_config.relative_pose_head and not pretrained.config.relative_pose_head
-            if pretrained.config.replace(relative_pose_head=self.model_config.relative_pose_head) != \
-                    self.model_config or pretrained.config.relative_pose_head > self.model_config.relative_pose_head:
+            has_head, wants_head = pretrained.config.relative_pose_head, self.model_config.relative_pose_head
+            # The one difference allowed: adding the relative-pose head (never dropping a trained one).
+            if pretrained.config.replace(relative_pose_head=wants_head) != self.model_config or has_head > wants_head:
                 raise UserError(f"model.init_from {spec.init_from} has a different model config than model.preset "
                                 f"{spec.preset!r} with its overrides")
-            if adds_pose_head:  # the one part the checkpoint lacks keeps its fresh (seeded) initialisation
+            if wants_head and not has_head:  # the one part the checkpoint lacks keeps its fresh (seeded) initialisation
                 state.update({k: v for k, v in model.state_dict().items() if k.startswith("decoder.heads.relative_pose.")})
             model.load_state_dict(state, strict=True)
         if spec.videomae is not None:
