@@ -253,3 +253,20 @@ def test_pose_loss_off_by_default_and_refused_without_the_head():
     del pred["relative_rotation"]
     with pytest.raises(UserError, match="relative_pose_head"):
         d4rt_loss(pred, batch, config)
+
+
+def test_squared_pose_translation_and_its_own_weight():
+    pred, batch, _, relative = _pose_case()
+    moved = batch["queries"][..., 2] != batch["queries"][..., 4]
+    pred["relative_translation"][moved] += torch.tensor([0.0, 0.0, 8.0])  # 2 target units off in z
+    mean_z = batch["points"][..., 2].abs().mean(1)
+    per_query = (4.0 / mean_z)[torch.nonzero(moved)[:, 0]]  # the error in each side's normalised units
+    plain, terms_l1 = d4rt_loss(pred, batch, LossConfig(weight_pose=1.0))
+    squared = LossConfig(weight_pose=1.0, pose_translation="squared", weight_pose_translation=3.0)
+    total, terms = d4rt_loss(pred, batch, squared)
+    assert torch.isclose(terms["pose_translation"], per_query.square().mean(), rtol=1e-4)
+    # Only the translation term changed: same rotation term, the other weight applied.
+    assert torch.isclose(terms["pose_rotation"], terms_l1["pose_rotation"])
+    assert torch.isclose(total - plain, 3.0 * terms["pose_translation"] - terms_l1["pose_translation"], atol=1e-5)
+    with pytest.raises(UserError, match="pose_translation must be one of l1, squared"):
+        LossConfig(pose_translation="l2").validate()

@@ -44,6 +44,11 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   the translation, each translation divided by its own side's per-clip mean depth (the prediction's
   detached, as for motion). Why: every tiny model trained on the paper's losses alone ignored t_cam; the
   points loss mixes a query's camera motion with its depth error, this term names the motion directly.
+  ``pose_translation="squared"`` compares the translations by the squared error instead, weighted by
+  ``weight_pose_translation`` (default: ``weight_pose``). Why: under L1 every query pushes with the same
+  force whatever its true translation, so the many clips whose camera barely travels (pans, a camera
+  held still) outvote the few whose parallax shows the direction of travel, and the head stays at zero
+  translation (stage 10, docs/training.md); the squared error's push grows with the true translation.
 """
 
 from __future__ import annotations
@@ -58,6 +63,8 @@ from d4rt.geometry.transforms import invert_rigid
 
 # Prediction and batch keys the loss reads.
 PREDICTION_KEYS = ("points", "uv", "visibility_logit", "motion", "normals", "confidence")
+# How the pose loss compares translations (LossConfig.pose_translation).
+POSE_TRANSLATION_ERRORS = ("l1", "squared")
 # Guards a degenerate all-zero prediction only; real scenes are many orders of magnitude deeper.
 _MIN_SCALE = 1e-12
 
@@ -79,13 +86,20 @@ class LossConfig:
     confidence_weighting: bool = True
     normalise_motion: bool = True
     weight_pose: float = 0.0
+    pose_translation: str = "l1"
+    weight_pose_translation: float | None = None
 
     def validate(self) -> None:
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
-                     "weight_normal", "weight_pose"):
+                     "weight_normal", "weight_pose", "weight_pose_translation"):
             value = getattr(self, name)
+            if value is None and name == "weight_pose_translation":
+                continue
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
                 raise UserError(f"loss {name} must be a number >= 0, got {value!r}")
+        if self.pose_translation not in POSE_TRANSLATION_ERRORS:
+            raise UserError(f"loss pose_translation must be one of {', '.join(POSE_TRANSLATION_ERRORS)}, "
+                            f"got {self.pose_translation!r}")
         if self.confidence_weighting and self.weight_confidence <= 0:
             raise UserError("loss weight_confidence must be > 0 with confidence_weighting (else c collapses to 0)")
 
@@ -176,8 +190,10 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
     pose_terms = {}
     if config.weight_pose > 0:
         lrot, ltrans = pose_loss(pred, batch, mean_depth(p["points"], valid).detach(),
-                                 mean_depth(target_points, valid))
-        total = total + config.weight_pose * (lrot + ltrans)
+                                 mean_depth(target_points, valid), config.pose_translation)
+        weight_translation = config.weight_pose if config.weight_pose_translation is None \
+            else config.weight_pose_translation
+        total = total + config.weight_pose * lrot + weight_translation * ltrans
         pose_terms = {"pose_rotation": lrot, "pose_translation": ltrans}
     terms = {
         "3d": masked_mean(l3d, valid),
@@ -196,10 +212,11 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
 
 
 def pose_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], pred_scale: torch.Tensor,
-              target_scale: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+              target_scale: torch.Tensor, translation_error: str = "l1") -> tuple[torch.Tensor, torch.Tensor]:
     """Rotation and translation terms of the pose loss (module docstring), each a mean over the queries
     with t_cam != t_src. pred: ``relative_rotation (B,N,3,3)``, ``relative_translation (B,N,3)``; batch:
-    ``queries (B,N,5)``, ``cam_to_world (B,T,4,4)``; scales: (B,) per-clip mean depths."""
+    ``queries (B,N,5)``, ``cam_to_world (B,T,4,4)``; scales: (B,) per-clip mean depths;
+    ``translation_error``: ``l1`` (sum of absolute differences) or ``squared`` (squared distance)."""
     if "relative_rotation" not in pred:
         raise UserError("loss weight_pose > 0 needs a model with relative_pose_head: true")
     if "cam_to_world" not in batch:
@@ -210,9 +227,13 @@ def pose_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], pre
     clip = torch.arange(c2w.shape[0], device=c2w.device)[:, None]
     relative = (invert_rigid(c2w)[clip, t_cam] @ c2w[clip, t_src]).float()  # camera t_src -> camera t_cam
     rotation_error = (pred["relative_rotation"].float() - relative[..., :3, :3]).abs().sum((-1, -2))
-    translation_error = (pred["relative_translation"].float() / pred_scale[:, None, None]
-                         - relative[..., :3, 3] / target_scale[:, None, None]).abs().sum(-1)
-    return masked_mean(rotation_error, moved), masked_mean(translation_error, moved)
+    difference = (pred["relative_translation"].float() / pred_scale[:, None, None]
+                  - relative[..., :3, 3] / target_scale[:, None, None])
+    if translation_error == "squared":
+        translation = difference.square().sum(-1)
+    else:
+        translation = difference.abs().sum(-1)
+    return masked_mean(rotation_error, moved), masked_mean(translation, moved)
 
 
 def _zero_where_missing(target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
