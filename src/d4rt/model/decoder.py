@@ -93,7 +93,9 @@ class PredictionHeads(nn.Module):
                 raw["motion"] = (rotation @ raw["motion"][..., None])[..., 0]
                 raw["normals"] = (rotation @ raw["normals"][..., None])[..., 0]
                 raw["relative_rotation"], raw["relative_translation"] = rotation, translation
-        logit = raw["visibility_logit"].squeeze(-1)
+        # A fresh tensor, not a view: FSDP2 hooks a root module's outputs for backward and warns that an
+        # in-place op on a returned view would bypass that hook.
+        logit = raw["visibility_logit"].squeeze(-1).clone()
         conf = raw["confidence"].squeeze(-1)
         if self.confidence_activation == "softplus":
             confidence = F.softplus(conf) + 1e-6  # strictly positive: the loss takes log(c)
