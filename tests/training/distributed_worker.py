@@ -4,12 +4,14 @@ each rank sees it (FSDP: the full parameter gathered from the shards).
     torchrun --nproc_per_node 2 distributed_worker.py CONFIG.yaml OUT_DIR REPORT.json [--resume]
 """
 
+import gc
 import hashlib
 import json
 import sys
 
 import torch
 import torch.distributed as dist
+from torch.distributed.device_mesh import DeviceMesh
 from torch.distributed.checkpoint.state_dict import StateDictOptions, get_model_state_dict
 
 from d4rt.training import TrainConfig
@@ -34,6 +36,10 @@ def main(config_path: str, out: str, report: str, *flags: str) -> None:
             json.dump(gathered, fh)
     del trainer, state  # release the wrapped model before its process group
     context.close()
+    # The process group must be gone before interpreter exit (see release_device_meshes): no mesh holds it.
+    alive = [o for o in gc.get_objects() if isinstance(o, DeviceMesh)]
+    if alive:
+        sys.exit(f"rank {context.rank}: {len(alive)} device mesh(es) still alive after close()")
 
 
 if __name__ == "__main__":
