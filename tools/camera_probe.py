@@ -12,12 +12,17 @@ the clip's exact oracle:
 - ``change``: how far the answer moves when t_cam goes from i to 0, relative to the point's distance
   (mean |P(i,i,0) - P(i,i,i)| / mean |P(i,i,i)|), model against truth;
 - ``rotation_error``: the angle between the fitted and the true rotation, in degrees (a camera that never
-  moves scores the true rotation itself).
+  moves scores the true rotation itself);
+- ``translation_cosine`` and ``translation_ratio``: the rigid fit's translation, divided by the mean distance
+  of the points in camera i (so each side in its own scale), against the truth's: the cosine of the angle
+  between the two, and the length of the model's over the truth's.
 
 A model that ignores t_cam recovers no rotation and its answer does not move. Reported: per clip the last
 frame's figures, and over all frames with a true rotation above 5 degrees the median of model / truth for both
-(1 = the full camera motion recovered, 0 = none), and the median rotation error over all frames but the
-first beside the median true rotation. Writes JSON and prints it.
+(1 = the full camera motion recovered, 0 = none), the median rotation error over all frames but the
+first beside the median true rotation, and over the frames whose camera travelled more than a tenth of the
+points' mean distance the median translation cosine and ratio (1 and 1 = the direction and length of travel
+recovered). Writes JSON and prints it.
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ from d4rt.synthetic import render_clip
 HELD_OUT_SEED = 8_000_000
 FRAMES, TIME_STRIDE, GRID = 16, 2, 8
 MIN_ROTATION = 5.0  # degrees: frames with less true rotation say little about the ratio
+MIN_TRAVEL = 0.1  # of the points' mean distance: frames whose camera travelled less say little about direction
 
 
 def own_and_first_camera(answer, num_frames: int) -> tuple[np.ndarray, np.ndarray]:
@@ -53,19 +59,27 @@ def own_and_first_camera(answer, num_frames: int) -> tuple[np.ndarray, np.ndarra
     return points[0::2].reshape(num_frames, -1, 3), points[1::2].reshape(num_frames, -1, 3)
 
 
-def camera_figures(here: np.ndarray, there: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per frame: rotation (3, 3) of the rigid fit here -> there, its angle (degrees), the relative change."""
-    rotation = relative_poses(here, there, np.ones(here.shape[:2]))[:, :3, :3]
-    change = np.linalg.norm(there - here, axis=-1).mean(1) / np.linalg.norm(here, axis=-1).mean(1)
-    return rotation, np.degrees(rotation_angle(rotation)), change
+def camera_figures(here: np.ndarray, there: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Per frame: rotation (3, 3) of the rigid fit here -> there, its angle (degrees), the relative change,
+    and the fit's translation (3,) over the mean distance of the points here."""
+    pose = relative_poses(here, there, np.ones(here.shape[:2]))
+    distance = np.linalg.norm(here, axis=-1).mean(1)
+    change = np.linalg.norm(there - here, axis=-1).mean(1) / distance
+    return pose[:, :3, :3], np.degrees(rotation_angle(pose[:, :3, :3])), change, pose[:, :3, 3] / distance[:, None]
 
 
 def probe(model: D4RT, clips: list) -> dict:
-    rows, rot_ratio, change_ratio, errors, truths = [], [], [], [], []
+    rows, rot_ratio, change_ratio, errors, truths, cosines, lengths = [], [], [], [], [], [], []
     for name, clip in clips:
         with torch.no_grad():
-            model_r, model_rot, model_change = camera_figures(*own_and_first_camera(model.encode(clip.rgb).query, FRAMES))
-        true_r, true_rot, true_change = camera_figures(*own_and_first_camera(clip.oracle.query, FRAMES))
+            model_r, model_rot, model_change, model_t = camera_figures(
+                *own_and_first_camera(model.encode(clip.rgb).query, FRAMES))
+        true_r, true_rot, true_change, true_t = camera_figures(*own_and_first_camera(clip.oracle.query, FRAMES))
+        travelled = np.linalg.norm(true_t, axis=-1) > MIN_TRAVEL
+        model_length, true_length = np.linalg.norm(model_t, axis=-1), np.linalg.norm(true_t, axis=-1)
+        cosine = (model_t * true_t).sum(-1) / np.maximum(model_length * true_length, 1e-12)  # 0 for no travel
+        cosines += list(cosine[travelled])
+        lengths += list(model_length[travelled] / true_length[travelled])
         error = np.degrees(rotation_angle(np.swapaxes(model_r, 1, 2) @ true_r))
         errors += list(error[1:])
         truths += list(true_rot[1:])
@@ -79,7 +93,10 @@ def probe(model: D4RT, clips: list) -> dict:
     return {"median_rotation_ratio": round(float(np.median(rot_ratio)), 3) if rot_ratio else None,
             "median_change_ratio": round(float(np.median(change_ratio)), 3) if change_ratio else None,
             "frames_counted": len(rot_ratio), "median_rotation_error": round(float(np.median(errors)), 2),
-            "median_true_rotation": round(float(np.median(truths)), 2), "clips": rows}
+            "median_true_rotation": round(float(np.median(truths)), 2),
+            "median_translation_cosine": round(float(np.median(cosines)), 3) if cosines else None,
+            "median_translation_ratio": round(float(np.median(lengths)), 3) if lengths else None,
+            "frames_travelled": len(cosines), "clips": rows}
 
 
 def main() -> None:
@@ -98,7 +115,9 @@ def main() -> None:
     for name, row in report["models"].items():
         print(name, "rotation recovered (median model/true):", row["median_rotation_ratio"],
               "answer change:", row["median_change_ratio"], f"({row['frames_counted']} frames);",
-              "rotation error", row["median_rotation_error"], "deg vs true rotation", row["median_true_rotation"])
+              "rotation error", row["median_rotation_error"], f"deg vs true rotation {row['median_true_rotation']};",
+              "translation cosine", row["median_translation_cosine"], "length ratio", row["median_translation_ratio"],
+              f"({row['frames_travelled']} frames)")
 
 
 if __name__ == "__main__":

@@ -35,6 +35,9 @@ def test_the_oracle_recovers_every_camera_motion(clips):
     assert report["median_rotation_ratio"] == pytest.approx(1.0, abs=1e-6)
     assert report["median_change_ratio"] == pytest.approx(1.0, abs=1e-6)
     assert report["median_rotation_error"] < 1e-3
+    assert report["frames_travelled"] > 0
+    assert report["median_translation_cosine"] == pytest.approx(1.0, abs=1e-6)
+    assert report["median_translation_ratio"] == pytest.approx(1.0, abs=1e-6)
 
 
 def test_answers_that_ignore_t_cam_recover_no_camera_motion(clips):
@@ -50,3 +53,5 @@ def test_answers_that_ignore_t_cam_recover_no_camera_motion(clips):
     report = camera_probe.probe(_answering(own_camera), clips)
     assert report["median_rotation_ratio"] < 1e-6 and report["median_change_ratio"] < 1e-6
     assert report["median_rotation_error"] == pytest.approx(report["median_true_rotation"], abs=1e-3)
+    assert report["frames_travelled"] > 0
+    assert abs(report["median_translation_cosine"]) < 1e-6 and report["median_translation_ratio"] < 1e-6
