@@ -6,14 +6,16 @@
 Sources (docs/model-card/, each written by the command named in MODEL_CARD.md):
 
 - ``training-stage<N>.json`` (tools/training_summary.py): steps, clips, times, hardware of each training
-  stage (stage N + 1 starts from stage N's weights);
+  stage of the shipped weights' lineage, numbered as in configs/ship-tiny-cpu-stage<N>.yaml (a stage starts
+  from the previous file's weights unless its summary names where it started);
 - ``eval-synthetic-dynamic-v1.json`` (``d4rt eval --benchmark synthetic-dynamic-v1``): the model beside
   the oracle and constant-depth baselines, aggregate and per clip; ``eval-synthetic-dynamic-v1-colmap.json``
   the pycolmap baseline alone (``--baseline colmap`` without a checkpoint: it does not depend on the
   model, so it is not re-run with every model);
 - ``focal.json`` (tools/measure_focal.py): focal-length errors, which ``d4rt eval`` does not score;
 - ``shipped-weights.json`` (optional; written by hand with the command that made them): the shipped
-  weights are an average of stages' weights (tools/average_weights.py), not the last stage's.
+  weights are an average of stages' weights (tools/average_weights.py); without it they are the last
+  stage's final weights.
 
 Each generated section sits between ``<!-- BEGIN name -->`` and ``<!-- END name -->`` markers; the text
 around them is written by hand and never holds a measured number.
@@ -59,8 +61,8 @@ def load_sources(directory: Path = SOURCES) -> dict:
     # pycolmap's figures do not depend on the model: its own run of d4rt eval, kept beside the model's.
     colmap = json.loads((directory / f"eval-{BENCHMARK}-colmap.json").read_text())
     sources[f"eval-{BENCHMARK}"]["methods"] += colmap["methods"]
-    stages = sorted(directory.glob("training-stage*.json"), key=lambda p: int(p.stem.removeprefix("training-stage")))
-    sources["training"] = [json.loads(p.read_text()) for p in stages]
+    numbered = {int(p.stem.removeprefix("training-stage")): p for p in directory.glob("training-stage*.json")}
+    sources["training"] = {number: json.loads(numbered[number].read_text()) for number in sorted(numbered)}
     shipped = directory / "shipped-weights.json"
     sources["shipped"] = json.loads(shipped.read_text()) if shipped.is_file() else None
     return sources
@@ -75,22 +77,27 @@ def table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
 
 
-def training_section(stages: list[dict], shipped: dict | None = None) -> str:
-    first = stages[0]
-    rows = [["model", f"`{first['preset']}` preset, {first['parameters'] / 1e6:.2f}M parameters, "
-                      f"max_frames {first['max_frames']}"]]
-    for number, stage in enumerate(stages, 1):
-        rows += [[f"stage {number}", stage_summary(stage, number)]]
-    steps = sum(s["steps"] for s in stages)
-    seconds = sum(s["training_seconds"] for s in stages)
+def training_section(stages: dict[int, dict], shipped: dict | None = None) -> str:
+    """``stages``: stage number -> its training summary, in training order."""
+    numbers = list(stages)
+    last = stages[numbers[-1]]  # the shipped model's architecture (a later stage may add a head)
+    rows = [["model", f"`{last['preset']}` preset, {last['parameters'] / 1e6:.2f}M parameters, "
+                      f"max_frames {last['max_frames']}"]]
+    for previous, number in zip([None, *numbers], numbers):
+        rows += [[f"stage {number}", stage_summary(stages[number], previous)]]
+    steps = sum(s["steps"] for s in stages.values())
+    seconds = sum(s["training_seconds"] for s in stages.values())
     rows += [["total", f"{steps:,} steps, {seconds / 60:.0f} min of optimiser steps"]]
     if shipped is not None:
         parts = " + ".join(f"{w:g} x stage {s}" for s, w in zip(shipped["stages"], shipped["weights"]))
         rows += [["shipped weights", f"the average {parts} (`{shipped['command']}`): no further training"]]
+    else:
+        rows += [["shipped weights", f"stage {numbers[-1]}'s final weights"]]
     return table(["", ""], rows)
 
 
-def stage_summary(training: dict, number: int) -> str:
+def stage_summary(training: dict, previous: int | None) -> str:
+    """One stage's row; ``previous``: the stage listed before it (None for the first)."""
     hw, config = training["hardware"], training["config"]
     dataset = config["data"]["dataset"]
     frames = dataset.get("frame_choices") or [training["frames_per_clip"]]
@@ -100,7 +107,7 @@ def stage_summary(training: dict, number: int) -> str:
              "none": "whole frames (no crop)"}[dataset.get("augment", {}).get("crop_policy", "paper")]
     source = "rendered on the fly (each seen once)" if dataset["source"] == "render" else "read from files"
     start = (f"from {training['starts_from']}; " if training.get("starts_from")
-             else f"from stage {number - 1}'s weights; " if number > 1 else "from scratch; ")
+             else f"from stage {previous}'s weights; " if previous is not None else "from scratch; ")
     when = ("in several runs, each resumed from the previous one's last checkpoint" if training["resumed"] else
             f"{training['wall_seconds'] / 60:.0f} min wall time with validation and checkpoints")
     return (f"{start}{training['clips_seen']:,} synthetic clips {source}, {frames_text} at "
