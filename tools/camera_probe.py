@@ -22,7 +22,9 @@ frame's figures, and over all frames with a true rotation above 5 degrees the me
 (1 = the full camera motion recovered, 0 = none), the median rotation error over all frames but the
 first beside the median true rotation, and over the frames whose camera travelled more than a tenth of the
 points' mean distance the median translation cosine and ratio (1 and 1 = the direction and length of travel
-recovered). Writes JSON and prints it.
+recovered); ``by_gap`` gives the rotation error and translation cosine per bin of 4 frames (the gap between
+t_src and t_cam). ``--frames 24 --time-stride 1`` asks 24-frame clips at synthetic-dynamic-v1's frame rate.
+Writes JSON and prints it.
 """
 
 from __future__ import annotations
@@ -68,19 +70,37 @@ def camera_figures(here: np.ndarray, there: np.ndarray) -> tuple[np.ndarray, ...
     return pose[:, :3, :3], np.degrees(rotation_angle(pose[:, :3, :3])), change, pose[:, :3, 3] / distance[:, None]
 
 
-def probe(model: D4RT, clips: list) -> dict:
+def by_gap(errors: np.ndarray, cosines: np.ndarray) -> list[dict]:
+    """Medians per bin of frames 1-3, 4-7, 8-11, ... (the gap to frame 0): rotation error (degrees) and
+    translation cosine (over the travelled frames). errors, cosines: (clips, frames), NaN = not counted."""
+    frames = errors.shape[1]
+    bins = [(1, min(4, frames))] + [(a, min(a + 4, frames)) for a in range(4, frames, 4)]
+
+    def median(values: np.ndarray) -> float | None:
+        values = values[np.isfinite(values)]
+        return round(float(np.median(values)), 3) if values.size else None
+
+    return [{"frames": [a, b - 1], "median_rotation_error": median(errors[:, a:b]),
+             "median_translation_cosine": median(cosines[:, a:b]),
+             "frames_travelled": int(np.isfinite(cosines[:, a:b]).sum())} for a, b in bins]
+
+
+def probe(model: D4RT, clips: list, frames: int = FRAMES) -> dict:
     rows, rot_ratio, change_ratio, errors, truths, cosines, lengths = [], [], [], [], [], [], []
+    error_table, cosine_table = [], []
     for name, clip in clips:
         with torch.no_grad():
             model_r, model_rot, model_change, model_t = camera_figures(
-                *own_and_first_camera(model.encode(clip.rgb).query, FRAMES))
-        true_r, true_rot, true_change, true_t = camera_figures(*own_and_first_camera(clip.oracle.query, FRAMES))
+                *own_and_first_camera(model.encode(clip.rgb).query, frames))
+        true_r, true_rot, true_change, true_t = camera_figures(*own_and_first_camera(clip.oracle.query, frames))
         travelled = np.linalg.norm(true_t, axis=-1) > MIN_TRAVEL
         model_length, true_length = np.linalg.norm(model_t, axis=-1), np.linalg.norm(true_t, axis=-1)
         cosine = (model_t * true_t).sum(-1) / np.maximum(model_length * true_length, 1e-12)  # 0 for no travel
         cosines += list(cosine[travelled])
         lengths += list(model_length[travelled] / true_length[travelled])
         error = np.degrees(rotation_angle(np.swapaxes(model_r, 1, 2) @ true_r))
+        error_table.append(error)
+        cosine_table.append(np.where(travelled, cosine, np.nan))
         errors += list(error[1:])
         truths += list(true_rot[1:])
         moving = true_rot > MIN_ROTATION
@@ -96,21 +116,25 @@ def probe(model: D4RT, clips: list) -> dict:
             "median_true_rotation": round(float(np.median(truths)), 2),
             "median_translation_cosine": round(float(np.median(cosines)), 3) if cosines else None,
             "median_translation_ratio": round(float(np.median(lengths)), 3) if lengths else None,
-            "frames_travelled": len(cosines), "clips": rows}
+            "frames_travelled": len(cosines),
+            "by_gap": by_gap(np.array(error_table), np.array(cosine_table)), "clips": rows}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoints", nargs="+")
     parser.add_argument("--out", required=True)
+    parser.add_argument("--frames", type=int, default=FRAMES, help=f"frames per clip (default {FRAMES})")
+    parser.add_argument("--time-stride", type=int, default=TIME_STRIDE,
+                        help=f"time steps between frames (default {TIME_STRIDE}; synthetic-dynamic-v1 uses 1)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     specs = [replace(s, seed=HELD_OUT_SEED + s.index) for s in clip_specs()[::3]]
-    clips = [(f"held_out_{s.index:02d}", render_clip(s.seed, FRAMES, s.height, s.width,
-                                                      **(vars(s.options) | {"time_stride": TIME_STRIDE})))
+    clips = [(f"held_out_{s.index:02d}", render_clip(s.seed, args.frames, s.height, s.width,
+                                                      **(vars(s.options) | {"time_stride": args.time_stride})))
              for s in specs]
-    report = {"frames": FRAMES, "time_stride": TIME_STRIDE, "held_out_seed": HELD_OUT_SEED,
-              "models": {str(c): probe(D4RT.from_pretrained(c), clips) for c in args.checkpoints}}
+    report = {"frames": args.frames, "time_stride": args.time_stride, "held_out_seed": HELD_OUT_SEED,
+              "models": {str(c): probe(D4RT.from_pretrained(c), clips, args.frames) for c in args.checkpoints}}
     Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
     for name, row in report["models"].items():
         print(name, "rotation recovered (median model/true):", row["median_rotation_ratio"],
@@ -118,6 +142,9 @@ def main() -> None:
               "rotation error", row["median_rotation_error"], f"deg vs true rotation {row['median_true_rotation']};",
               "translation cosine", row["median_translation_cosine"], "length ratio", row["median_translation_ratio"],
               f"({row['frames_travelled']} frames)")
+        for gap in row["by_gap"]:
+            print(f"  frames {gap['frames'][0]}-{gap['frames'][1]}: rotation error {gap['median_rotation_error']} deg, "
+                  f"translation cosine {gap['median_translation_cosine']} ({gap['frames_travelled']} frames)")
 
 
 if __name__ == "__main__":

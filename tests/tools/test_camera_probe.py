@@ -38,6 +38,10 @@ def test_the_oracle_recovers_every_camera_motion(clips):
     assert report["frames_travelled"] > 0
     assert report["median_translation_cosine"] == pytest.approx(1.0, abs=1e-6)
     assert report["median_translation_ratio"] == pytest.approx(1.0, abs=1e-6)
+    assert [g["frames"] for g in report["by_gap"]][:2] == [[1, 3], [4, 7]]
+    assert all(g["median_rotation_error"] < 1e-3 for g in report["by_gap"])
+    assert all(g["median_translation_cosine"] == pytest.approx(1.0, abs=1e-6)
+               for g in report["by_gap"] if g["frames_travelled"])
 
 
 def test_answers_that_ignore_t_cam_recover_no_camera_motion(clips):
