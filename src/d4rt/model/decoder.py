@@ -36,6 +36,11 @@ class CrossAttentionBlock(nn.Module):
         return x + self.mlp(self.norm2(x))
 
 
+def _fresh(x: torch.Tensor) -> torch.Tensor:
+    """``x`` itself, or a copy of it when it is a view of another tensor."""
+    return x if x._base is None else x.clone()
+
+
 def rotation_from_6d(d6: torch.Tensor) -> torch.Tensor:
     """Rotation matrices ``(..., 3, 3)`` from the 6D form ``(..., 6)`` (Zhou et al. 2019): the two
     3-vectors are Gram-Schmidt orthonormalised into the first two columns, the third is their cross
@@ -93,21 +98,21 @@ class PredictionHeads(nn.Module):
                 raw["motion"] = (rotation @ raw["motion"][..., None])[..., 0]
                 raw["normals"] = (rotation @ raw["normals"][..., None])[..., 0]
                 raw["relative_rotation"], raw["relative_translation"] = rotation, translation
-        # A fresh tensor, not a view: FSDP2 hooks a root module's outputs for backward and warns that an
-        # in-place op on a returned view would bypass that hook.
-        logit = raw["visibility_logit"].squeeze(-1).clone()
+        logit = raw["visibility_logit"].squeeze(-1)
         conf = raw["confidence"].squeeze(-1)
         if self.confidence_activation == "softplus":
             confidence = F.softplus(conf) + 1e-6  # strictly positive: the loss takes log(c)
         else:
             confidence = 1.0 + torch.exp(conf.clamp(max=80.0))  # clamp: exp overflow guard, not a range limit
         pose = {k: raw[k] for k in ("relative_rotation", "relative_translation") if k in raw}
+        # Fresh tensors, not views (a linear layer on (B, N, dim) returns a view of its 2D result): FSDP2
+        # hooks a root module's outputs for backward and warns that an in-place op on a view bypasses it.
         return pose | {
-            "points": raw["points"],
-            "uv": raw["uv"],
+            "points": _fresh(raw["points"]),
+            "uv": _fresh(raw["uv"]),
             "visibility": torch.sigmoid(logit),
-            "visibility_logit": logit,
-            "motion": raw["motion"],
+            "visibility_logit": _fresh(logit),
+            "motion": _fresh(raw["motion"]),
             "normals": F.normalize(raw["normals"], dim=-1, eps=1e-6),
             "confidence": confidence,
         }
