@@ -137,8 +137,9 @@ def release_device_meshes() -> None:
     whose keys hold the mesh, and the mesh holds the process group. Left alone, the group outlives
     ``destroy_process_group`` and is torn down during interpreter finalization, where gloo's worker
     threads occasionally abort the process ("terminate called without an active exception": a rank of
-    the FSDP test died so in CI). These are torch's private caches (torch pinned in pyproject); one that
-    a torch release renames is skipped, and the test worker checks that no mesh survives.
+    the FSDP test died so in CI). These are torch's private caches (the README installs torch 2.13.0;
+    pyproject leaves torch unpinned); one that a torch release renames is skipped, and the test worker
+    checks that no mesh survives.
     """
     import gc
     import importlib

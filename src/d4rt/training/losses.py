@@ -90,11 +90,10 @@ class LossConfig:
     weight_pose_translation: float | None = None
 
     def validate(self) -> None:
+        optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
-                     "weight_normal", "weight_pose", "weight_pose_translation"):
+                     "weight_normal", "weight_pose", *optional):
             value = getattr(self, name)
-            if value is None and name == "weight_pose_translation":
-                continue
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
                 raise UserError(f"loss {name} must be a number >= 0, got {value!r}")
         if self.pose_translation not in POSE_TRANSLATION_ERRORS:
@@ -229,10 +228,10 @@ def pose_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], pre
     rotation_error = (pred["relative_rotation"].float() - relative[..., :3, :3]).abs().sum((-1, -2))
     difference = (pred["relative_translation"].float() / pred_scale[:, None, None]
                   - relative[..., :3, 3] / target_scale[:, None, None])
-    if translation_error == "squared":
-        translation = difference.square().sum(-1)
-    else:
-        translation = difference.abs().sum(-1)
+    if translation_error not in POSE_TRANSLATION_ERRORS:
+        raise UserError(f"loss pose_translation must be one of {', '.join(POSE_TRANSLATION_ERRORS)}, "
+                        f"got {translation_error!r}")
+    translation = (difference.square() if translation_error == "squared" else difference.abs()).sum(-1)
     return masked_mean(rotation_error, moved), masked_mean(translation, moved)
 
 
