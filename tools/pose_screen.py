@@ -23,6 +23,7 @@ import torch
 from d4rt.evaluation.benchmarks import get_benchmark
 from d4rt.evaluation.harness import evaluate_sequence
 from d4rt.evaluation.predictions import d4rt_predictor
+from d4rt.reconstruction.windows import POSE_PAIRS
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from model_card import BENCHMARK, pose_comparison  # noqa: E402  (a sibling script, not a package)
@@ -31,12 +32,12 @@ COLMAP = Path(__file__).resolve().parents[1] / "docs" / "model-card" / f"eval-{B
 POSE_KEYS = ("ate", "rpe_trans", "rpe_rot", "auc@30")
 
 
-def screen(checkpoints: list[str], limit: int | None = None) -> dict:
+def screen(checkpoints: list[str], limit: int | None = None, pose_pairs: str = "first") -> dict:
     """Per checkpoint: per-clip pose metrics, their means over all clips, and the pycolmap comparison."""
     colmap = [m for m in json.loads(COLMAP.read_text())["methods"] if m["name"] == "colmap"]
     benchmark = get_benchmark(BENCHMARK)
     names = benchmark.sequence_names(None)[:limit]
-    predictors = {c: d4rt_predictor(c) for c in checkpoints}
+    predictors = {c: d4rt_predictor(c, pose_pairs=pose_pairs) for c in checkpoints}
     clips: dict[str, list[dict]] = {c: [] for c in checkpoints}
     for name in names:
         sequence = benchmark.load(None, name)
@@ -57,9 +58,11 @@ def main() -> None:
     parser.add_argument("checkpoints", nargs="+")
     parser.add_argument("--out", required=True)
     parser.add_argument("--limit", type=int, default=None, help="only the first N clips")
+    parser.add_argument("--pose-pairs", choices=POSE_PAIRS, default="first", help="the camera recipe's pairing")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    report = {"benchmark": BENCHMARK, "models": screen(args.checkpoints, args.limit)}
+    report = {"benchmark": BENCHMARK, "pose_pairs": args.pose_pairs,
+              "models": screen(args.checkpoints, args.limit, args.pose_pairs)}
     Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
     for name, row in report["models"].items():
         c, m = row["colmap_comparison"], row["mean"]

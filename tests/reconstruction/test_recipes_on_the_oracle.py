@@ -7,7 +7,8 @@ import torch
 from d4rt.errors import UserError
 from d4rt.geometry.camera import project, unproject_depth
 from d4rt.geometry.transforms import apply_transform, invert_rigid
-from d4rt.reconstruction import Reconstruction, plan_windows
+from d4rt.io import formats
+from d4rt.reconstruction import Reconstruction, plan_windows, windows
 from d4rt.synthetic import render_clip
 
 
@@ -307,3 +308,41 @@ def test_observation_frames_spread_over_the_window_with_the_source_among_them():
         a, b = next(w for w in windows if w[0] <= s < w[1])  # the first window holding it owns it
         assert s in row and len(set(row)) == 5 and row.min() >= a and row.max() < b
     assert (observation_frames([(0, 3)], np.array([1]), 5) == [[0, 1, 2, -1, -1]]).all()
+
+
+def test_adjacent_pose_pairs_are_exact_and_chain_across_windows():
+    """pose_pairs="adjacent" fits frame i against frame i - 1 and chains the fits: on the oracle it gives the
+    paper's poses, in one window and stitched over three (where a window's chain starts at its first frame)."""
+    clip = render_clip(8, 24, 32, 48, environment="room", num_objects=5, camera_motion="orbit", moving_fraction=0.8)
+    gt = invert_rigid(clip.cam_to_world[0]) @ clip.cam_to_world
+    scale = np.linalg.norm(gt[:, :3, 3], axis=1).max() + 1.0
+    for options in ({}, {"window": 8, "overlap": 3}):
+        rec = clip.reconstruction(pose_pairs="adjacent", **options)
+        cams = rec.cameras()
+        assert rotation_error_deg(cams.cam_to_world, gt).max() < 0.01
+        assert np.abs(cams.cam_to_world[:, :3, 3] - gt[:, :3, 3]).max() < 1e-4 * scale
+        paper = clip.reconstruction(**options).cameras()
+        assert np.allclose(cams.intrinsics, paper.intrinsics)  # the same frame-i answers serve the intrinsics
+        assert np.abs(cams.cam_to_world - paper.cam_to_world).max() < 1e-4 * scale
+    with pytest.raises(UserError, match="pose_pairs must be one of first, adjacent"):
+        clip.reconstruction(pose_pairs="previous")
+
+    class Recording:  # the oracle, keeping every query it is asked
+        num_frames = clip.num_frames
+
+        def __init__(self):
+            self.asked = []
+
+        def query(self, queries):
+            self.asked.append(np.array(queries))
+            return clip.oracle.query(queries)
+
+    gaps = {}
+    for pairs in ("first", "adjacent"):
+        answerer = Recording()
+        Reconstruction(answerer, clip.rgb, pose_pairs=pairs).cameras()
+        asked = np.concatenate(answerer.asked)
+        gaps[pairs] = np.abs(asked[:, 2] - asked[:, 4]).max()
+        assert len(asked) == 2 * clip.num_frames * 12 * 12  # the same cost: two queries per grid point and frame
+    assert gaps == {"first": clip.num_frames - 1, "adjacent": 1}
+    assert formats.POSE_PAIRS == windows.POSE_PAIRS  # the command line's copy of the names

@@ -10,6 +10,7 @@ def register(subparsers) -> None:
     from d4rt.evaluation.baselines import BASELINES
     from d4rt.evaluation.benchmarks import BENCHMARKS
     from d4rt.evaluation.readers import FORMATS
+    from d4rt.io.formats import POSE_PAIRS
 
     p = subparsers.add_parser(
         "eval", help=COMMANDS["eval"],
@@ -27,6 +28,9 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--out", type=Path, help="JSON results file (default: ./d4rt-eval-<benchmark>.json)")
     p.add_argument("--limit", type=int, help="evaluate only the first N sequences")
     p.add_argument("--device", default="cpu", help="torch device for the model")
+    p.add_argument("--pose-pairs", choices=POSE_PAIRS, default="first",
+                   help="the model's camera recipe: each frame against the window's 'first' camera (the paper's, "
+                        "the default) or against the previous frame, chained ('adjacent')")
     p.set_defaults(func=run)
 
 
@@ -50,7 +54,7 @@ def run(args) -> int:
         if args.checkpoint is None:
             raise UserError("nothing to evaluate: pass --checkpoint and/or --baseline")
         baselines = ["oracle"] + (["constant-depth"] if "depth" in benchmark.tasks else [])
-    predictors = ([d4rt_predictor(args.checkpoint, args.device)] if args.checkpoint else [])
+    predictors = ([d4rt_predictor(args.checkpoint, args.device, args.pose_pairs)] if args.checkpoint else [])
     predictors += [make_baseline(name) for name in dict.fromkeys(baselines)]
     results = run_benchmark(benchmark, predictors, args.data, args.limit)
     print(to_markdown(benchmark, results))

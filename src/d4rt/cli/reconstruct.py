@@ -15,7 +15,8 @@ import numpy as np
 from d4rt.progress import progress_bar
 
 from d4rt.errors import UserError
-from d4rt.io.formats import CAMERA_CHOICES, COLMAP_VIEWS, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST, POINT_SOURCES
+from d4rt.io.formats import (CAMERA_CHOICES, COLMAP_VIEWS, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST, POINT_SOURCES,
+                             POSE_PAIRS)
 from d4rt.io.shots import DEFAULT_THRESHOLD as DEFAULT_CUT_THRESHOLD
 from d4rt.cli import COMMANDS, parse_size
 
@@ -74,6 +75,10 @@ def register(subparsers) -> None:
                          help="estimated intrinsics: 'single' camera for the whole video (what splatting and MVS "
                               "tools expect), one 'per-frame' (the paper's recipe; for zooming shots) or 'auto' (the "
                               "default: single unless the per-frame focal lengths differ by more than 15%%)")
+    outputs.add_argument("--pose-pairs", choices=POSE_PAIRS, default="first",
+                         help="which camera each frame's pose is fitted against: the window's 'first' (the paper's "
+                              "recipe, the default) or the previous frame's, the fits chained ('adjacent': every "
+                              "query a one-frame gap, but errors add up along the chain)")
     outputs.add_argument("--non-square-pixels", action="store_true",
                          help="estimate fx and fy separately (default: square pixels, fx = fy)")
     outputs.add_argument("--resolution", default="auto",
@@ -327,7 +332,7 @@ def reconstruct_clip(model, rgb, timestamps, out_dir, args, formats, save_option
 
     with progress_bar(desc="encode", unit="window", bar_format="{desc}: {n} window encodings [{elapsed}]") as bar:
         rec = Reconstruction.from_model(model, rgb, window=args.window, overlap=args.overlap, on_encode=bar.update,
-                                        progress=True)
+                                        pose_pairs=args.pose_pairs, progress=True)
         print(describe_work(rec, formats, save_options["resolution"], args.point_stride, args.tracks, args.max_points,
                             args.points_from))
         return export_reconstruction(rec, out_dir, formats, overwrite=overwrite, timestamps=timestamps, **save_options)

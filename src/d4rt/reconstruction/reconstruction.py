@@ -28,8 +28,8 @@ from d4rt.reconstruction.dense import occupancy_tracking
 from d4rt.reconstruction.results import Cameras, DenseTracks, Depth, PointCloud, Tracks
 from d4rt.reconstruction.query_patterns import grid_queries, track_queries
 from d4rt.reconstruction.sources import AnswererSource, ModelSource, as_source
-from d4rt.reconstruction.windows import (align_windows, hand_off, keeping_windows, owned, owners, plan_windows,
-                                         window_camera_grid, window_depth)
+from d4rt.reconstruction.windows import (POSE_PAIRS, align_windows, hand_off, keeping_windows, owned, owners,
+                                         plan_windows, window_camera_grid, window_depth)
 
 KEYS = ("points", "uv", "visibility", "confidence")
 
@@ -54,12 +54,14 @@ class Reconstruction:
     consecutive windows (default: one window if the answerer takes the whole video, else the
     answerer's maximum with a quarter of it as overlap). chunk_size: queries per call to the answerer
     (bounds memory). grid: points per side of the grid used for cameras and window alignment.
-    progress: show progress bars (default: only for long work).
+    pose_pairs: which camera each frame's pose is fitted against: "first" (the paper's recipe: the window's
+    first camera) or "adjacent" (the previous frame's camera, the fits chained; see
+    ``d4rt.reconstruction.windows.POSE_PAIRS``). progress: show progress bars (default: only for long work).
     """
 
     def __init__(self, answerer, video, *, window: int | None = None, overlap: int | None = None,
                  chunk_size: int = 1 << 16, grid: int = DEFAULT_GRID, align_fraction: float = 0.85,
-                 progress: bool | None = None):
+                 pose_pairs: str = "first", progress: bool | None = None):
         self.video = _as_uint8_video(video)
         self.source = as_source(answerer)
         self.num_frames, self.height, self.width = self.video.shape[:3]
@@ -67,6 +69,9 @@ class Reconstruction:
             raise UserError(f"the answerer covers {self.source.num_frames} frames but the video has {self.num_frames}")
         if chunk_size < 1 or grid < 2 or not 0 < align_fraction <= 1:
             raise UserError("chunk_size must be >= 1, grid >= 2 and align_fraction in (0, 1]")
+        if pose_pairs not in POSE_PAIRS:
+            raise UserError(f"pose_pairs must be one of {', '.join(POSE_PAIRS)}, got {pose_pairs!r}")
+        self.pose_pairs = pose_pairs
         self.chunk_size, self.grid, self.align_fraction, self.progress = chunk_size, grid, align_fraction, progress
         self.windows = plan_windows(self.num_frames, window or self.source.max_window, overlap)
         self.queries_decoded = 0  # every query answered so far (the recipes' cost)
@@ -162,7 +167,7 @@ class Reconstruction:
         for win in range(len(self.windows)):
             frames = np.array(owned(self.windows, win))
             points, confidence, c2w[frames] = window_camera_grid(lambda q: self._ask(win, q), self.windows[win][0],
-                                                                 frames, uv, self.window_to_world[win])
+                                                                 frames, uv, self.window_to_world[win], self.pose_pairs)
             for j, f in enumerate(frames):
                 per_frame[f] = {"points": points[j], "confidence": confidence[j]}
         return per_frame, c2w
@@ -179,7 +184,8 @@ class Reconstruction:
         without zooming: steadier, and what splatting and MVS tools expect). square_pixels: fx = fy.
         Poses: the same grid queried as (i, i, i) and (i, i, r) is one set of points at one time in two
         cameras, so moving objects cannot corrupt the rigid Umeyama fit between them (r = the window's
-        first frame; windows are then chained by their Sim(3)).
+        first frame, or frame i - 1 with the fits chained when the reconstruction's ``pose_pairs`` is
+        "adjacent"; windows are then chained by their Sim(3)).
         """
         self._check_frame(reference_frame, "reference_frame")
         if camera not in CAMERA_MODELS:

@@ -103,30 +103,49 @@ def align_pair(ask_previous: Callable[[np.ndarray], dict], ask_this: Callable[[n
     return umeyama(torch.from_numpy(here["points"][keep]), target, with_scale=True)
 
 
-def window_camera_grid(ask: Callable[[np.ndarray], dict], first: int, frames: np.ndarray, uv: np.ndarray,
-                       window_to_world: Similarity) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The camera recipe's answers for the frames one window owns (paper Sec. 2.1): grid ``uv`` (P, 2) of
-    frame i seen in camera i (for intrinsics) and in the window's first camera ``first`` (for the pose).
+# Which camera each frame's pose is fitted against (Reconstruction's ``pose_pairs``): "first", the paper's
+# recipe, fits frame i against the window's first camera; "adjacent" fits it against frame i - 1 and chains the
+# fits, so every query's t_src - t_cam gap is 1 (a learned model's error grows with that gap) at the price of
+# drift along the chain. Both are exact on the oracle and cost the same queries.
+POSE_PAIRS = ("first", "adjacent")
 
-    ask(queries with global frame indices) -> the window's answers; frames: (F,) owned frames.
+
+def window_camera_grid(ask: Callable[[np.ndarray], dict], first: int, frames: np.ndarray, uv: np.ndarray,
+                       window_to_world: Similarity, pairs: str = "first") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The camera recipe's answers for the frames one window owns (paper Sec. 2.1): grid ``uv`` (P, 2) of
+    frame i seen in camera i (for intrinsics) and in another camera of the window (for the pose): its first
+    camera ``first`` (pairs="first"), or camera i - 1 with the fits chained from ``first`` (pairs="adjacent").
+
+    ask(queries with global frame indices) -> the window's answers; frames: (F,) owned frames, ascending.
     Returns points (F, P, 3) in camera i, their confidence (F, P), and cam_to_world (F, 4, 4) of each
     frame in the global world (the rigid fit between the two views, after the window's Sim(3)).
     """
+    if pairs not in POSE_PAIRS:
+        raise UserError(f"pose_pairs must be one of {', '.join(POSE_PAIRS)}, got {pairs!r}")
     n = len(uv)
+    frames = np.asarray(frames, dtype=np.int64)
+    if not len(frames):
+        return np.zeros((0, n, 3)), np.zeros((0, n)), np.zeros((0, 4, 4))
+    # A chain needs every frame from the window's first one, owned or not.
+    asked = np.arange(first, frames.max() + 1) if pairs == "adjacent" else frames
+    other = np.maximum(asked - 1, first) if pairs == "adjacent" else np.full_like(asked, first)
     # One call, each point's two queries side by side: they differ only in t_cam, so the model embeds their
     # shared (u, v, t_src) once (EncodedScene.query, share_sources).
-    both = np.stack([grid_queries(uv, frames, frames, frames),
-                     grid_queries(uv, frames, frames, np.full_like(frames, first))], 1).reshape(-1, 5)
+    both = np.stack([grid_queries(uv, asked, asked, asked), grid_queries(uv, asked, asked, other)], 1).reshape(-1, 5)
     answers = ask(both)
-    here = {k: v[0::2] for k, v in answers.items()}
-    there = {k: v[1::2] for k, v in answers.items()}
-    sim = window_to_world.matrix().double().numpy()
+    here = {k: v[0::2].reshape(len(asked), n, *v.shape[1:]) for k, v in answers.items()}
+    there = {k: v[1::2].reshape(len(asked), n, *v.shape[1:]) for k, v in answers.items()}
     # Every frame's rigid fit at once (one batched SVD, no loop over frames).
-    weights = _finite_weights(here["confidence"] * there["confidence"]).reshape(len(frames), n)
-    poses = relative_poses(here["points"].reshape(len(frames), n, 3), there["points"].reshape(len(frames), n, 3),
-                           weights)
-    c2w = np.stack([similarity_times_pose(sim, pose) for pose in poses]) if len(frames) else np.zeros((0, 4, 4))
-    return here["points"].reshape(len(frames), n, 3), here["confidence"].reshape(len(frames), n), c2w
+    weights = _finite_weights(here["confidence"] * there["confidence"])
+    poses = relative_poses(here["points"], there["points"], weights)
+    if pairs == "adjacent":
+        poses[0] = np.eye(4)  # the window's first camera is its world
+        for k in range(1, len(poses)):
+            poses[k] = poses[k - 1] @ poses[k]  # camera i -> camera i - 1 -> ... -> the first camera
+    pick = np.searchsorted(asked, frames)
+    sim = window_to_world.matrix().double().numpy()
+    c2w = np.stack([similarity_times_pose(sim, pose) for pose in poses[pick]])
+    return here["points"][pick], here["confidence"][pick], c2w
 
 
 def window_depth(ask: Callable[[np.ndarray], dict], frames: np.ndarray, uv: np.ndarray, scale: float, height: int,
