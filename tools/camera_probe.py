@@ -92,10 +92,11 @@ def by_gap(errors: np.ndarray, cosines: np.ndarray) -> list[dict]:
              "frames_travelled": int(np.isfinite(cosines[:, a:b]).sum())} for a, b in bins]
 
 
-def trajectory_ates(model: D4RT, clip) -> dict[str, float]:
-    """ATE of the recipe's trajectory for each pose pairing, and of a camera that never moves."""
+def trajectory_ates(scene, clip) -> dict[str, float]:
+    """ATE of the recipe's trajectory for each pose pairing, from the clip's encoded ``scene`` (anything with
+    ``query`` and ``num_frames``), and of a camera that never moves."""
     truth = clip.cam_to_world
-    ates = {pairs: pose_metrics(Reconstruction.from_model(model, clip.rgb, pose_pairs=pairs, progress=False)
+    ates = {pairs: pose_metrics(Reconstruction(scene, clip.rgb, pose_pairs=pairs, progress=False)
                                 .cameras().cam_to_world, truth)["ate"] for pairs in POSE_PAIRS}
     centres = truth[:, :3, 3]
     ates["static"] = float(np.sqrt(((centres - centres.mean(0)) ** 2).sum(1).mean()))
@@ -111,11 +112,10 @@ def probe(model: D4RT, clips: list, frames: int = FRAMES) -> dict:
     rows, rot_ratio, change_ratio, errors, truths, cosines, lengths = [], [], [], [], [], [], []
     error_table, cosine_table, ates = [], [], []
     for name, clip in clips:
-        with torch.no_grad():
-            ates.append(trajectory_ates(model, clip))
-        with torch.no_grad():
-            model_r, model_rot, model_change, model_t = camera_figures(
-                *own_and_first_camera(model.encode(clip.rgb).query, frames))
+        with torch.no_grad():  # one encoding serves the probe's queries and both trajectories
+            scene = model.encode(clip.rgb)
+            ates.append(trajectory_ates(scene, clip))
+            model_r, model_rot, model_change, model_t = camera_figures(*own_and_first_camera(scene.query, frames))
         true_r, true_rot, true_change, true_t = camera_figures(*own_and_first_camera(clip.oracle.query, frames))
         travelled = np.linalg.norm(true_t, axis=-1) > MIN_TRAVEL
         model_length, true_length = np.linalg.norm(model_t, axis=-1), np.linalg.norm(true_t, axis=-1)

@@ -28,8 +28,8 @@ from d4rt.reconstruction.dense import occupancy_tracking
 from d4rt.reconstruction.results import Cameras, DenseTracks, Depth, PointCloud, Tracks
 from d4rt.reconstruction.query_patterns import grid_queries, track_queries
 from d4rt.reconstruction.sources import AnswererSource, ModelSource, as_source
-from d4rt.reconstruction.windows import (POSE_PAIRS, align_windows, hand_off, keeping_windows, owned, owners,
-                                         plan_windows, window_camera_grid, window_depth)
+from d4rt.reconstruction.windows import (align_windows, check_pose_pairs, hand_off, keeping_windows, owned,
+                                         owners, plan_windows, window_camera_grid, window_depth)
 
 KEYS = ("points", "uv", "visibility", "confidence")
 
@@ -69,9 +69,7 @@ class Reconstruction:
             raise UserError(f"the answerer covers {self.source.num_frames} frames but the video has {self.num_frames}")
         if chunk_size < 1 or grid < 2 or not 0 < align_fraction <= 1:
             raise UserError("chunk_size must be >= 1, grid >= 2 and align_fraction in (0, 1]")
-        if pose_pairs not in POSE_PAIRS:
-            raise UserError(f"pose_pairs must be one of {', '.join(POSE_PAIRS)}, got {pose_pairs!r}")
-        self.pose_pairs = pose_pairs
+        self.pose_pairs = check_pose_pairs(pose_pairs)
         self.chunk_size, self.grid, self.align_fraction, self.progress = chunk_size, grid, align_fraction, progress
         self.windows = plan_windows(self.num_frames, window or self.source.max_window, overlap)
         self.queries_decoded = 0  # every query answered so far (the recipes' cost)

@@ -110,6 +110,13 @@ def align_pair(ask_previous: Callable[[np.ndarray], dict], ask_this: Callable[[n
 POSE_PAIRS = ("first", "adjacent")
 
 
+def check_pose_pairs(pairs: str) -> str:
+    """``pairs`` if it names a pose pairing, else a one-line :class:`UserError`."""
+    if pairs not in POSE_PAIRS:
+        raise UserError(f"pose_pairs must be one of {', '.join(POSE_PAIRS)}, got {pairs!r}")
+    return pairs
+
+
 def window_camera_grid(ask: Callable[[np.ndarray], dict], first: int, frames: np.ndarray, uv: np.ndarray,
                        window_to_world: Similarity, pairs: str = "first") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The camera recipe's answers for the frames one window owns (paper Sec. 2.1): grid ``uv`` (P, 2) of
@@ -120,8 +127,7 @@ def window_camera_grid(ask: Callable[[np.ndarray], dict], first: int, frames: np
     Returns points (F, P, 3) in camera i, their confidence (F, P), and cam_to_world (F, 4, 4) of each
     frame in the global world (the rigid fit between the two views, after the window's Sim(3)).
     """
-    if pairs not in POSE_PAIRS:
-        raise UserError(f"pose_pairs must be one of {', '.join(POSE_PAIRS)}, got {pairs!r}")
+    check_pose_pairs(pairs)
     n = len(uv)
     frames = np.asarray(frames, dtype=np.int64)
     if not len(frames):
