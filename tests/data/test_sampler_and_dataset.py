@@ -209,6 +209,14 @@ def test_variable_clip_lengths_and_depth_queries(tmp_path):
     q = ds[0]["queries"]
     depth = (q[:, 2] == q[:, 3]) & (q[:, 3] == q[:, 4])
     assert 0.35 < depth.float().mean() < 0.7  # 0.5 forced + the uniform draws' own share
+    # Camera-pair queries: t_tgt = t_src and t_cam a neighbouring frame, at about the asked share.
+    cfg = DatasetConfig(num_clips=4, frames=5, size=(32, 32), render_pixels=32 * 32,
+                        sampler=QuerySamplerConfig(num_queries=400, adjacent_camera_fraction=0.6))
+    q = ClipQueryDataset(cfg)[0]["queries"]
+    pair = (q[:, 2] == q[:, 3]) & ((q[:, 4] - q[:, 2]).abs() == 1)
+    assert 0.5 < pair.float().mean() < 0.75 and q[:, 2:].min() >= 0 and q[:, 2:].max() <= 4
+    with pytest.raises(UserError, match="adjacent_camera_fraction"):
+        QuerySamplerConfig(adjacent_camera_fraction=1.5).validate()
     from d4rt.training import TrainConfig
 
     config = TrainConfig.from_dict({"data": {"batch_size": 2, "dataset": {"frames": 8, "frame_choices": [8, 16],

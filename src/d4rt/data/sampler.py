@@ -2,6 +2,8 @@
 
 Per clip, ``num_queries`` queries (u, v, t_src, t_tgt, t_cam):
 - t_src, t_tgt, t_cam uniform over the frames, then t_cam := t_tgt with probability 0.4;
+  (not in paper, both off by default) a ``depth_fraction`` of depth queries and an
+  ``adjacent_camera_fraction`` of camera-pair queries (t_tgt = t_src, t_cam a neighbouring frame);
 - a ``boundary_fraction`` (30%) of the (u, v) drawn from pixels within ``boundary_radius`` pixels of a
   depth or motion boundary (Sobel filter on log-depth and on the scene flow), the rest uniform.
 Pixels are drawn on the source clip's pixel grid (inside a view's crop when one is given) and then
@@ -34,6 +36,10 @@ class QuerySamplerConfig:
     # Share of queries made depth queries (t_src = t_tgt = t_cam), drawn before the rule above; 0 is the
     # paper's sampler, where they are only the ~1/T^2 that the uniform draws give.
     depth_fraction: float = 0.0
+    # Share of queries made camera-pair queries (t_tgt = t_src, t_cam = t_src +- 1), drawn after the two rules
+    # above (it overrides them); 0 is the paper's sampler. Why: Reconstruction's pose_pairs="adjacent" asks
+    # exactly these, and the uniform draws give them only ~2/T of the time.
+    adjacent_camera_fraction: float = 0.0
     boundary_radius: int = 2  # "within a few pixels" (not in paper): pixels
     depth_edge_threshold: float = 0.05  # Sobel of log-depth per pixel (about a 10% depth step)
     motion_edge_threshold: float = 0.01  # Sobel of scene flow / depth per pixel
@@ -42,7 +48,7 @@ class QuerySamplerConfig:
     def validate(self) -> None:
         if self.num_queries < 1:
             raise UserError(f"num_queries must be >= 1, got {self.num_queries}")
-        for name in ("boundary_fraction", "tgt_equals_cam_prob", "depth_fraction"):
+        for name in ("boundary_fraction", "tgt_equals_cam_prob", "depth_fraction", "adjacent_camera_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise UserError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         if self.boundary_radius < 0:
@@ -147,6 +153,13 @@ class QuerySampler:
             depth = rng.uniform(size=n) < cfg.depth_fraction
             t_tgt = np.where(depth, t_src, t_tgt)
             t_cam = np.where(depth, t_src, t_cam)
+        if cfg.adjacent_camera_fraction > 0 and t_view > 1:  # likewise drawn only when asked for
+            pair = rng.uniform(size=n) < cfg.adjacent_camera_fraction
+            step = np.where(rng.uniform(size=n) < 0.5, -1, 1)
+            neighbour = t_src + step
+            neighbour = np.where((neighbour < 0) | (neighbour >= t_view), t_src - step, neighbour)
+            t_tgt = np.where(pair, t_src, t_tgt)
+            t_cam = np.where(pair, neighbour, t_cam)
 
         n_boundary = int(round(cfg.boundary_fraction * n))
         from_boundary = np.zeros(n, dtype=bool)
