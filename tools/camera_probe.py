@@ -49,7 +49,7 @@ from d4rt.model import D4RT
 from d4rt.reconstruction import Reconstruction
 from d4rt.reconstruction.cameras import relative_poses
 from d4rt.reconstruction.query_patterns import grid_queries
-from d4rt.reconstruction.windows import POSE_PAIRS
+from d4rt.config import POSE_PAIRS
 from d4rt.synthetic import render_clip
 
 HELD_OUT_SEED = 8_000_000

@@ -23,7 +23,7 @@ import torch
 from d4rt.evaluation.benchmarks import get_benchmark
 from d4rt.evaluation.harness import evaluate_sequence
 from d4rt.evaluation.predictions import d4rt_predictor
-from d4rt.reconstruction.windows import POSE_PAIRS
+from d4rt.config import POSE_PAIRS, D4RTConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from model_card import BENCHMARK, pose_comparison  # noqa: E402  (a sibling script, not a package)
@@ -32,8 +32,9 @@ COLMAP = Path(__file__).resolve().parents[1] / "docs" / "model-card" / f"eval-{B
 POSE_KEYS = ("ate", "rpe_trans", "rpe_rot", "auc@30")
 
 
-def screen(checkpoints: list[str], limit: int | None = None, pose_pairs: str = "first") -> dict:
-    """Per checkpoint: per-clip pose metrics, their means over all clips, and the pycolmap comparison."""
+def screen(checkpoints: list[str], limit: int | None = None, pose_pairs: str | None = None) -> dict:
+    """Per checkpoint: the camera pairing used (``pose_pairs``, by default the model's own), per-clip pose
+    metrics, their means over all clips, and the pycolmap comparison."""
     colmap = [m for m in json.loads(COLMAP.read_text())["methods"] if m["name"] == "colmap"]
     benchmark = get_benchmark(BENCHMARK)
     names = benchmark.sequence_names(None)[:limit]
@@ -49,7 +50,8 @@ def screen(checkpoints: list[str], limit: int | None = None, pose_pairs: str = "
         means = {k: float(np.mean([r["metrics"][k] for r in rows if r["metrics"][k] is not None])) for k in POSE_KEYS}
         comparison = pose_comparison({"methods": [{"name": "d4rt", "sequences": rows}] + colmap})
         comparison["ratio"] = comparison["d4rt_ate"] / comparison["colmap_ate"]
-        report[checkpoint] = {"mean": means, "colmap_comparison": comparison, "clips": rows}
+        pairs = pose_pairs or D4RTConfig.load(Path(checkpoint) / "config.json").pose_pairs
+        report[checkpoint] = {"pose_pairs": pairs, "mean": means, "colmap_comparison": comparison, "clips": rows}
     return report
 
 
@@ -58,15 +60,15 @@ def main() -> None:
     parser.add_argument("checkpoints", nargs="+")
     parser.add_argument("--out", required=True)
     parser.add_argument("--limit", type=int, default=None, help="only the first N clips")
-    parser.add_argument("--pose-pairs", choices=POSE_PAIRS, default="first", help="the camera recipe's pairing")
+    parser.add_argument("--pose-pairs", choices=POSE_PAIRS,
+                        help="the camera recipe's pairing (default: each model's own, its config's pose_pairs)")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    report = {"benchmark": BENCHMARK, "pose_pairs": args.pose_pairs,
-              "models": screen(args.checkpoints, args.limit, args.pose_pairs)}
+    report = {"benchmark": BENCHMARK, "models": screen(args.checkpoints, args.limit, args.pose_pairs)}
     Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
     for name, row in report["models"].items():
         c, m = row["colmap_comparison"], row["mean"]
-        print(f"{name}: ATE {m['ate']:.4f}, on the {len(c['common'])} clips pycolmap poses {c['d4rt_ate']:.4f} vs "
+        print(f"{name} ({row['pose_pairs']}): ATE {m['ate']:.4f}, on the {len(c['common'])} clips pycolmap poses {c['d4rt_ate']:.4f} vs "
               f"{c['colmap_ate']:.4f} = {c['ratio']:.2f}x; RPE-trans {m['rpe_trans']:.4f}, RPE-rot {m['rpe_rot']:.3f} deg")
 
 

@@ -29,6 +29,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+# Which camera each frame's pose is fitted against (Reconstruction's ``pose_pairs``): "first", the paper's
+# recipe, fits frame i against the window's first camera; "adjacent" fits it against frame i - 1 and chains the
+# fits, so every query's t_src - t_cam gap is 1 (a learned model's error grows with that gap) at the price of
+# drift along the chain. Both are exact on the oracle and cost the same queries. Here, in the torch-free
+# foundation, so that the command line and the model config share one list.
+POSE_PAIRS = ("first", "adjacent")
+
 from d4rt.errors import UserError
 
 PATCH_SOURCES = ("encoder", "original")
@@ -79,6 +86,12 @@ class D4RTConfig:
             (docs/training.md). Its layer is initialised like every other linear layer: started at zero
             (the identity pose) it stayed near zero and passed no gradient back to the encoder.
 
+    Inference default
+        pose_pairs: the camera recipe's pairing that ``Reconstruction.from_model`` uses for this model when the
+            caller names none: ``"first"`` (the paper's: each frame against the window's first camera) or
+            ``"adjacent"`` (against the previous frame, the fits chained); see ``POSE_PAIRS``. Saved with the
+            weights because it is chosen per model, on held-out clips; not part of the architecture.
+
     Runtime
         layer_norm_eps: epsilon of every LayerNorm (1e-6, as VideoMAE v2).
         init_std: standard deviation of the truncated-normal initialisation of linear layers.
@@ -114,6 +127,8 @@ class D4RTConfig:
     decoder_mlp_dim: int = 768
     confidence_activation: str = "softplus"
     relative_pose_head: bool = False
+    # inference default
+    pose_pairs: str = "first"
     # runtime
     layer_norm_eps: float = 1e-6
     init_std: float = 0.02
@@ -167,6 +182,8 @@ class D4RTConfig:
         for name in ("gradient_checkpointing", "cache_scene_kv", "relative_pose_head"):
             if not isinstance(getattr(self, name), bool):
                 raise UserError(f"config field {name} must be true or false, got {getattr(self, name)!r}")
+        if self.pose_pairs not in POSE_PAIRS:
+            raise UserError(f"config pose_pairs must be one of {', '.join(POSE_PAIRS)}, got {self.pose_pairs!r}")
         if min(self.pixel_std) <= 0:
             raise UserError(f"config pixel_std must be positive, got {list(self.pixel_std)}")
 

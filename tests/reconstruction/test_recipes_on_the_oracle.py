@@ -1,5 +1,7 @@
 """The query recipes, run on the synthetic engine's exact oracle, must reproduce ground truth."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 import torch
@@ -7,8 +9,8 @@ import torch
 from d4rt.errors import UserError
 from d4rt.geometry.camera import project, unproject_depth
 from d4rt.geometry.transforms import apply_transform, invert_rigid
-from d4rt.io import formats
-from d4rt.reconstruction import Reconstruction, plan_windows, windows
+from d4rt.config import D4RTConfig
+from d4rt.reconstruction import Reconstruction, plan_windows
 from d4rt.synthetic import render_clip
 
 
@@ -345,4 +347,12 @@ def test_adjacent_pose_pairs_are_exact_and_chain_across_windows():
         gaps[pairs] = np.abs(asked[:, 2] - asked[:, 4]).max()
         assert len(asked) == 2 * clip.num_frames * 12 * 12  # the same cost: two queries per grid point and frame
     assert gaps == {"first": clip.num_frames - 1, "adjacent": 1}
-    assert formats.POSE_PAIRS == windows.POSE_PAIRS  # the command line's copy of the names
+
+    # A model carries its own pairing (config pose_pairs, chosen per model): from_model uses it unless told.
+    for own in ("first", "adjacent"):
+        model = SimpleNamespace(config=D4RTConfig.preset("tiny", pose_pairs=own), encode=lambda rgb: Recording())
+        assert Reconstruction.from_model(model, clip.rgb).pose_pairs == own
+        assert Reconstruction.from_model(model, clip.rgb, pose_pairs="first").pose_pairs == "first"
+    assert D4RTConfig.from_json(D4RTConfig.preset("tiny", pose_pairs="adjacent").to_json()).pose_pairs == "adjacent"
+    with pytest.raises(UserError, match="config pose_pairs must be one of first, adjacent"):
+        D4RTConfig.preset("tiny", pose_pairs="previous")

@@ -10,7 +10,7 @@ def register(subparsers) -> None:
     from d4rt.evaluation.baselines import BASELINES
     from d4rt.evaluation.benchmarks import BENCHMARKS
     from d4rt.evaluation.readers import FORMATS
-    from d4rt.io.formats import POSE_PAIRS
+    from d4rt.config import POSE_PAIRS
 
     p = subparsers.add_parser(
         "eval", help=COMMANDS["eval"],
@@ -28,9 +28,10 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--out", type=Path, help="JSON results file (default: ./d4rt-eval-<benchmark>.json)")
     p.add_argument("--limit", type=int, help="evaluate only the first N sequences")
     p.add_argument("--device", default="cpu", help="torch device for the model")
-    p.add_argument("--pose-pairs", choices=POSE_PAIRS, default="first",
-                   help="the model's camera recipe: each frame against the window's 'first' camera (the paper's, "
-                        "the default) or against the previous frame, chained ('adjacent')")
+    p.add_argument("--pose-pairs", choices=POSE_PAIRS,
+                   help="the model's camera recipe: each frame against the window's 'first' camera (the paper's) "
+                        "or against the previous frame, chained ('adjacent'); default: the model's own choice "
+                        "(its config's pose_pairs)")
     p.set_defaults(func=run)
 
 

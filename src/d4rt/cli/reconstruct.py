@@ -14,9 +14,9 @@ from contextlib import nullcontext
 import numpy as np
 from d4rt.progress import progress_bar
 
+from d4rt.config import POSE_PAIRS
 from d4rt.errors import UserError
-from d4rt.io.formats import (CAMERA_CHOICES, COLMAP_VIEWS, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST, POINT_SOURCES,
-                             POSE_PAIRS)
+from d4rt.io.formats import CAMERA_CHOICES, COLMAP_VIEWS, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST, POINT_SOURCES
 from d4rt.io.shots import DEFAULT_THRESHOLD as DEFAULT_CUT_THRESHOLD
 from d4rt.cli import COMMANDS, parse_size
 
@@ -75,10 +75,11 @@ def register(subparsers) -> None:
                          help="estimated intrinsics: 'single' camera for the whole video (what splatting and MVS "
                               "tools expect), one 'per-frame' (the paper's recipe; for zooming shots) or 'auto' (the "
                               "default: single unless the per-frame focal lengths differ by more than 15%%)")
-    outputs.add_argument("--pose-pairs", choices=POSE_PAIRS, default="first",
+    outputs.add_argument("--pose-pairs", choices=POSE_PAIRS,
                          help="which camera each frame's pose is fitted against: the window's 'first' (the paper's "
-                              "recipe, the default) or the previous frame's, the fits chained ('adjacent': every "
-                              "query a one-frame gap, but errors add up along the chain)")
+                              "recipe) or the previous frame's, the fits chained ('adjacent': every query a "
+                              "one-frame gap, but errors add up along the chain); default: the model's own choice "
+                              "(its config's pose_pairs)")
     outputs.add_argument("--non-square-pixels", action="store_true",
                          help="estimate fx and fy separately (default: square pixels, fx = fy)")
     outputs.add_argument("--resolution", default="auto",

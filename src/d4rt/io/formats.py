@@ -48,9 +48,6 @@ DEFAULT_MAX_POINTS = 20_000
 COLMAP_VIEWS = 8
 # "auto" camera model: one camera unless the per-frame focal lengths' 90th / 10th percentiles differ more.
 CAMERA_CHOICES = ("auto", "single", "per-frame")
-# d4rt.reconstruction.windows.POSE_PAIRS (the camera recipe's pairings), repeated so that the command line
-# needs no torch to build its parser; a test checks that the two agree.
-POSE_PAIRS = ("first", "adjacent")
 # Where the point cloud comes from: the decoded depth maps and cameras, or the paper's direct queries.
 POINT_SOURCES = ("depth", "queries")
 ZOOM_SPREAD = 1.15

@@ -80,8 +80,10 @@ class Reconstruction:
         """The recipes over a D4RT model (anything with ``encode(video) -> answerer`` and ``config``):
         each window of ``video`` (T, H, W, 3) is encoded when first asked for (:class:`ModelSource`);
         ``on_encode`` is called after each encode (a progress bar's update, say); ``options`` as for
-        the constructor."""
+        the constructor, with ``pose_pairs`` (or None) defaulting to the model's own (``config.pose_pairs``)."""
         source = ModelSource(model, video, max_window=window, on_encode=on_encode)
+        if options.get("pose_pairs") is None:
+            options["pose_pairs"] = model.config.pose_pairs
         return cls(source, video, window=window, overlap=overlap, **options)
 
     @classmethod

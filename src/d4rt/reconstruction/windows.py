@@ -17,6 +17,7 @@ from contextlib import contextmanager
 import numpy as np
 import torch
 
+from d4rt.config import POSE_PAIRS
 from d4rt.errors import UserError
 from d4rt.geometry.transforms import similarity_times_pose
 from d4rt.geometry.umeyama import Similarity, umeyama
@@ -101,13 +102,6 @@ def align_pair(ask_previous: Callable[[np.ndarray], dict], ask_this: Callable[[n
     keep = order[: max(3, int(np.ceil(align_fraction * len(order))))]
     target = previous_to_world.apply(torch.from_numpy(prev["points"][keep]))
     return umeyama(torch.from_numpy(here["points"][keep]), target, with_scale=True)
-
-
-# Which camera each frame's pose is fitted against (Reconstruction's ``pose_pairs``): "first", the paper's
-# recipe, fits frame i against the window's first camera; "adjacent" fits it against frame i - 1 and chains the
-# fits, so every query's t_src - t_cam gap is 1 (a learned model's error grows with that gap) at the price of
-# drift along the chain. Both are exact on the oracle and cost the same queries.
-POSE_PAIRS = ("first", "adjacent")
 
 
 def check_pose_pairs(pairs: str) -> str:

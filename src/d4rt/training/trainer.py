@@ -119,8 +119,10 @@ class Trainer:
             pretrained = D4RT.from_pretrained(spec.init_from)
             state = pretrained.state_dict()
             has_head, wants_head = pretrained.config.relative_pose_head, self.model_config.relative_pose_head
-            # The one difference allowed: adding the relative-pose head (never dropping a trained one).
-            if pretrained.config.replace(relative_pose_head=wants_head) != self.model_config or has_head > wants_head:
+            # The one difference allowed: adding the relative-pose head (never dropping a trained one). The camera
+            # pairing is an inference default, not architecture: the new model keeps the one its config names.
+            same = pretrained.config.replace(relative_pose_head=wants_head, pose_pairs=self.model_config.pose_pairs)
+            if same != self.model_config or has_head > wants_head:
                 raise UserError(f"model.init_from {spec.init_from} has a different model config than model.preset "
                                 f"{spec.preset!r} with its overrides")
             if wants_head and not has_head:  # the one part the checkpoint lacks keeps its fresh (seeded) initialisation
