@@ -34,3 +34,37 @@ def test_bf16_autocast_trains(tmp_path, clip_dir):
     fp32, _ = run(tmp_path, "fp32", clip_dir, run={"max_steps": 2, "checkpoint_every": 2})
     assert all(w.dtype == fp32[k].dtype for k, w in weights.items())  # parameters stay float32
     assert any(not weights[k].equal(fp32[k]) for k in weights)  # the matmuls did run in bf16
+
+
+def test_keep_best_publishes_the_best_validated_checkpoint_and_survives_a_resume(tmp_path, clip_dir):
+    import json
+
+    import pytest
+
+    from d4rt.errors import UserError
+
+    validation = {"every": 1, "directory": str(clip_dir), "num_clips": 1, "frames": 4, "track_points": 16,
+                  "num_queries": 64, "keep_best": "loss/total", "tasks": []}  # the loss terms alone: fast
+    steps = {"max_steps": 4, "checkpoint_every": 4, "keep_checkpoints": 10}
+    config = TrainConfig.from_dict(fast_config(clip_dir, run=steps, validation=validation))
+    out = tmp_path / "run"
+    train(config, out)
+    logged = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
+    values = {row["step"]: row["val/loss/total"] for row in logged if "val/loss/total" in row}
+    best_step = min(values, key=values.get)
+    record = json.loads((out / "best" / "best.json").read_text())
+    assert record == {"metric": "loss/total", "mode": "min", "step": best_step, "value": values[best_step]}
+    # Its weights are that step's checkpoint (written because it was a new best, off the checkpoint schedule).
+    best = load_file(str(out / "best" / "model.safetensors"))
+    saved = load_file(str(out / "checkpoints" / f"step-{best_step:08d}" / "model.safetensors"))
+    assert all(best[k].equal(saved[k]) for k in best)
+    # A resumed, longer run compares against the record it left, not from scratch.
+    longer = TrainConfig.from_dict(fast_config(clip_dir, run={**steps, "max_steps": 5}, validation=validation))
+    train(longer, out, resume=True)
+    again = json.loads((out / "best" / "best.json").read_text())
+    assert again["value"] <= record["value"] and (again == record or again["step"] == 5)
+    with pytest.raises(UserError, match="not a validation metric"):
+        bad = {**validation, "keep_best": "nonsense"}
+        train(TrainConfig.from_dict(fast_config(clip_dir, run=steps, validation=bad)), tmp_path / "bad")
+    with pytest.raises(UserError, match="keep_best_mode"):
+        TrainConfig.from_dict(fast_config(clip_dir, validation={**validation, "keep_best_mode": "up"})).validate()

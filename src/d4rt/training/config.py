@@ -142,6 +142,10 @@ class ValidationConfig:
     these are never trained on. Each clip gives the loss terms on ``num_queries`` sampled queries and
     reconstruction metrics for ``tasks`` (of ``depth``, ``pose``, ``tracks``, ``world_tracks``,
     ``point_cloud``; computed as ``d4rt eval`` does), tracks on ``track_points`` oracle tracks.
+    ``keep_best``: a validation metric (its name without ``val/``, e.g. ``ate`` or ``loss/total``); each time
+    it reaches a new best (``keep_best_mode`` ``min`` or ``max``) that step is checkpointed and its weights
+    are published as ``<run>/best/`` with ``best.json`` (step, value). Why: a checkpoint chosen on these
+    held-out clips, by a rule written before the run, never on the benchmark.
     """
 
     every: int = 0
@@ -155,6 +159,8 @@ class ValidationConfig:
     track_points: int = 256
     tasks: tuple[str, ...] = ("depth", "pose", "tracks")
     scene_options: dict = field(default_factory=dict)
+    keep_best: str | None = None
+    keep_best_mode: str = "min"
 
 
 @dataclass
@@ -208,6 +214,10 @@ class TrainConfig:
         if height % model.patch_size or width % model.patch_size or max(height, width) > model.image_size:
             raise UserError(f"{source}.size {height}x{width} must be multiples of the model's patch_size "
                             f"{model.patch_size} and at most its image_size {model.image_size}")
+        if val.keep_best is not None and not val.every:
+            raise UserError("validation.keep_best needs validation.every > 0")
+        if val.keep_best_mode not in ("min", "max"):
+            raise UserError(f"validation.keep_best_mode must be min or max, got {val.keep_best_mode!r}")
         unknown_tasks = sorted(set(val.tasks) - set(EVALUATION_TASKS))
         if unknown_tasks:
             raise UserError(f"validation.tasks: unknown {unknown_tasks}; choose from {list(EVALUATION_TASKS)}")

@@ -13,6 +13,7 @@ Run directory::
     <run>/model.safetensors, config.json   latest weights (D4RT.from_pretrained(<run>))
     <run>/train_config.yaml                 the resolved training config
     <run>/checkpoints/step-XXXXXXXX/        resumable checkpoints (see d4rt.training.checkpoint)
+    <run>/best/                             with validation.keep_best: the best-validated weights, best.json
     <run>/metrics.jsonl, tensorboard/       logs
 
 ``train(config, out, resume=True)`` continues from the newest complete checkpoint exactly: the weights,
@@ -192,6 +193,7 @@ class Trainer:
         loader = training_loader(dataset, stream, data.workers, run.seed, context.rank,
                                  pin_memory=context.device.type == "cuda")
         validator = Validator(cfg.validation, cfg.loss, data.dataset.sampler) if cfg.validation.every else None
+        best = _read_best(self.out, cfg.validation) if context.is_main else None
         logger = TrainLogger(self.out, context.is_main, run.max_steps, step, run.tensorboard, run.progress)
         if latest is not None and context.is_main:
             logger.message(f"resumed from {latest} at step {step}")
@@ -239,17 +241,23 @@ class Trainer:
                         logger.log(step, last)
                         totals, window_start, window_steps = {}, time.perf_counter(), 0
                     paused = time.perf_counter()  # validation and checkpoints do not count as training time
+                    improved = False
                     if validator is not None and (step % cfg.validation.every == 0 or step == run.max_steps):
                         scalars = self._validate(model, validator)
                         logger.log(step, scalars)
                         last.update(scalars)
+                        if context.is_main and cfg.validation.keep_best is not None:
+                            improved = _improves(best, scalars, cfg.validation)
+                        improved = context.any_flag(improved)  # every rank saves the same step
                     scheduled = step % run.checkpoint_every == 0 or step == run.max_steps
-                    if scheduled:
-                        self._save(model, optimizer, step, next_sample, skipped)
+                    if scheduled or improved:
+                        path = self._save(model, optimizer, step, next_sample, skipped)
+                        if improved and context.is_main:
+                            best = _publish_best(path, self.out, step, last, cfg.validation)
                     window_start += time.perf_counter() - paused
                     logger.advance()
                     if context.any_flag(stop.requested is not None):  # every rank stops after the same step
-                        if not scheduled:
+                        if not (scheduled or improved):
                             self._save(model, optimizer, step, next_sample, skipped)
                         stopped_by = stop.requested or "a signal to another rank"
                         logger.message(f"stopped by {stopped_by} after step {step}: checkpoint written, continue with "
@@ -276,7 +284,8 @@ class Trainer:
         self.context.barrier()
         return scalars
 
-    def _save(self, model, optimizer, step: int, next_sample: int, skipped: int) -> None:
+    def _save(self, model, optimizer, step: int, next_sample: int, skipped: int) -> Path | None:
+        """Checkpoint this step (a collective); its directory on the main rank, None on the others."""
         context = self.context
         weights, optim = model_state(model), optimizer_state(model, optimizer)  # collectives
         rng = capture_rng_state(context.device)
@@ -295,6 +304,7 @@ class Trainer:
             _publish_weights(path, self.out)
             ckpt.prune_checkpoints(root, self.config.run.keep_checkpoints)
         context.barrier()
+        return path if context.is_main else None
 
 
 def _publish_weights(checkpoint: Path, out: Path) -> None:
@@ -308,6 +318,44 @@ def _publish_weights(checkpoint: Path, out: Path) -> None:
         except OSError:  # file systems without hard links
             ckpt.write_file_atomically(temp, (checkpoint / name).read_bytes())
         os.replace(temp, out / name)
+
+
+BEST = "best"  # <run>/best/: validation.keep_best's weights
+
+
+def _read_best(out: Path, validation) -> dict | None:
+    """The best-validated record of a resumed run (``<run>/best/best.json``), None if there is none yet or it
+    ranks another metric or direction (a resume may change validation.keep_best: the record starts again)."""
+    path = out / BEST / "best.json"
+    if validation.keep_best is None or not path.is_file():
+        return None
+    record = json.loads(path.read_text())
+    same = record.get("metric") == validation.keep_best and record.get("mode") == validation.keep_best_mode
+    return record if same else None
+
+
+def _improves(best: dict | None, scalars: dict[str, float], validation) -> bool:
+    """Whether this validation's ``keep_best`` metric beats the best so far (a NaN never does)."""
+    key = f"val/{validation.keep_best}"
+    if key not in scalars:
+        raise UserError(f"validation.keep_best {validation.keep_best!r} is not a validation metric; choose from "
+                        f"{', '.join(sorted(k.removeprefix('val/') for k in scalars))}")
+    value = scalars[key]
+    if value != value:
+        return False
+    if best is None:
+        return True
+    return value < best["value"] if validation.keep_best_mode == "min" else value > best["value"]
+
+
+def _publish_best(checkpoint: Path, out: Path, step: int, scalars: dict[str, float], validation) -> dict:
+    """Publish ``checkpoint``'s weights as ``<run>/best/`` and record why; returns the record."""
+    (out / BEST).mkdir(exist_ok=True)
+    _publish_weights(checkpoint, out / BEST)
+    record = {"metric": validation.keep_best, "mode": validation.keep_best_mode, "step": step,
+              "value": scalars[f"val/{validation.keep_best}"]}
+    ckpt.write_file_atomically(out / BEST / "best.json", (json.dumps(record, indent=1) + "\n").encode())
+    return record
 
 
 def _check_resumable(saved: dict, current: dict, path: Path) -> None:
