@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from d4rt.errors import UserError
+
 # Which camera each frame's pose is fitted against (Reconstruction's ``pose_pairs``): "first", the paper's
 # recipe, fits frame i against the window's first camera; "adjacent" fits it against frame i - 1 and chains the
 # fits, so every query's t_src - t_cam gap is 1 (a learned model's error grows with that gap) at the price of
@@ -36,7 +38,13 @@ from typing import Any
 # foundation, so that the command line and the model config share one list.
 POSE_PAIRS = ("first", "adjacent")
 
-from d4rt.errors import UserError
+
+def check_pose_pairs(pairs: str, name: str = "pose_pairs") -> str:
+    """``pairs`` if it names a pose pairing, else a one-line :class:`UserError` naming the setting ``name``."""
+    if pairs not in POSE_PAIRS:
+        raise UserError(f"{name} must be one of {', '.join(POSE_PAIRS)}, got {pairs!r}")
+    return pairs
+
 
 PATCH_SOURCES = ("encoder", "original")
 CONFIDENCE_ACTIVATIONS = ("softplus", "one_plus_exp")
@@ -182,8 +190,7 @@ class D4RTConfig:
         for name in ("gradient_checkpointing", "cache_scene_kv", "relative_pose_head"):
             if not isinstance(getattr(self, name), bool):
                 raise UserError(f"config field {name} must be true or false, got {getattr(self, name)!r}")
-        if self.pose_pairs not in POSE_PAIRS:
-            raise UserError(f"config pose_pairs must be one of {', '.join(POSE_PAIRS)}, got {self.pose_pairs!r}")
+        check_pose_pairs(self.pose_pairs, "config pose_pairs")
         if min(self.pixel_std) <= 0:
             raise UserError(f"config pixel_std must be positive, got {list(self.pixel_std)}")
 

@@ -17,6 +17,7 @@ from functools import cached_property
 import numpy as np
 import torch
 
+from d4rt.config import check_pose_pairs
 from d4rt.errors import UserError
 from d4rt.disk_array import DiskArray
 from d4rt.geometry.camera import cell_centres_uv, pixel_grid, pixel_to_uv
@@ -28,8 +29,8 @@ from d4rt.reconstruction.dense import occupancy_tracking
 from d4rt.reconstruction.results import Cameras, DenseTracks, Depth, PointCloud, Tracks
 from d4rt.reconstruction.query_patterns import grid_queries, track_queries
 from d4rt.reconstruction.sources import AnswererSource, ModelSource, as_source
-from d4rt.reconstruction.windows import (align_windows, check_pose_pairs, hand_off, keeping_windows, owned,
-                                         owners, plan_windows, window_camera_grid, window_depth)
+from d4rt.reconstruction.windows import (align_windows, hand_off, keeping_windows, owned, owners, plan_windows,
+                                         window_camera_grid, window_depth)
 
 KEYS = ("points", "uv", "visibility", "confidence")
 

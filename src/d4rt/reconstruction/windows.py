@@ -17,7 +17,7 @@ from contextlib import contextmanager
 import numpy as np
 import torch
 
-from d4rt.config import POSE_PAIRS
+from d4rt.config import check_pose_pairs
 from d4rt.errors import UserError
 from d4rt.geometry.transforms import similarity_times_pose
 from d4rt.geometry.umeyama import Similarity, umeyama
@@ -102,13 +102,6 @@ def align_pair(ask_previous: Callable[[np.ndarray], dict], ask_this: Callable[[n
     keep = order[: max(3, int(np.ceil(align_fraction * len(order))))]
     target = previous_to_world.apply(torch.from_numpy(prev["points"][keep]))
     return umeyama(torch.from_numpy(here["points"][keep]), target, with_scale=True)
-
-
-def check_pose_pairs(pairs: str) -> str:
-    """``pairs`` if it names a pose pairing, else a one-line :class:`UserError`."""
-    if pairs not in POSE_PAIRS:
-        raise UserError(f"pose_pairs must be one of {', '.join(POSE_PAIRS)}, got {pairs!r}")
-    return pairs
 
 
 def window_camera_grid(ask: Callable[[np.ndarray], dict], first: int, frames: np.ndarray, uv: np.ndarray,
