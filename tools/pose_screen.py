@@ -69,7 +69,8 @@ def main() -> None:
     for name, row in report["models"].items():
         c, m = row["colmap_comparison"], row["mean"]
         print(f"{name} ({row['pose_pairs']}): ATE {m['ate']:.4f}, on the {len(c['common'])} clips pycolmap poses "
-              f"{c['d4rt_ate']:.4f} vs {c['colmap_ate']:.4f} = {c['ratio']:.2f}x; RPE-trans {m['rpe_trans']:.4f}, RPE-rot {m['rpe_rot']:.3f} deg")
+              f"{c['d4rt_ate']:.4f} vs {c['colmap_ate']:.4f} = {c['ratio']:.2f}x; "
+              f"RPE-trans {m['rpe_trans']:.4f}, RPE-rot {m['rpe_rot']:.3f} deg")
 
 
 if __name__ == "__main__":

@@ -3,9 +3,13 @@ data-loader worker processes."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
+import pytest
 from safetensors.torch import load_file
 
+from d4rt.errors import UserError
 from d4rt.training import TrainConfig, train
 from training_helpers import fast_config
 
@@ -37,12 +41,6 @@ def test_bf16_autocast_trains(tmp_path, clip_dir):
 
 
 def test_keep_best_publishes_the_best_validated_checkpoint_and_survives_a_resume(tmp_path, clip_dir):
-    import json
-
-    import pytest
-
-    from d4rt.errors import UserError
-
     validation = {"every": 1, "directory": str(clip_dir), "num_clips": 1, "frames": 4, "track_points": 16,
                   "num_queries": 64, "keep_best": "loss/total", "tasks": []}  # the loss terms alone: fast
     steps = {"max_steps": 4, "checkpoint_every": 4, "keep_checkpoints": 10}

@@ -26,6 +26,7 @@ step, so nothing is lost (:mod:`d4rt.training.stop`).
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 from dataclasses import dataclass
@@ -246,9 +247,8 @@ class Trainer:
                         scalars = self._validate(model, validator)
                         logger.log(step, scalars)
                         last.update(scalars)
-                        if context.is_main and cfg.validation.keep_best is not None:
-                            improved = _improves(best, scalars, cfg.validation)
-                        improved = context.any_flag(improved)  # every rank saves the same step
+                        if cfg.validation.keep_best is not None:
+                            improved = self._improves_best(best, scalars)
                     scheduled = step % run.checkpoint_every == 0 or step == run.max_steps
                     if scheduled or improved:
                         path = self._save(model, optimizer, step, next_sample, skipped)
@@ -283,6 +283,18 @@ class Trainer:
             scalars = validator.run(unwrap(model), self.autocast)
         self.context.barrier()
         return scalars
+
+    def _improves_best(self, best: dict | None, scalars: dict[str, float]) -> bool:
+        """Whether this validation sets a new best of ``validation.keep_best``, the same answer on every rank
+        (only the main rank validates, so every rank saves the same step); an unknown metric name is a
+        one-line error on every rank rather than on the main rank alone while the others wait."""
+        validation, context = self.config.validation, self.context
+        key = f"val/{validation.keep_best}"
+        if context.any_flag(context.is_main and key not in scalars):
+            names = ", ".join(sorted(k.removeprefix("val/") for k in scalars))
+            raise UserError(f"validation.keep_best {validation.keep_best!r} is not a validation metric"
+                            + (f"; choose from {names}" if names else ""))
+        return context.any_flag(context.is_main and _beats(best, scalars[key], validation.keep_best_mode))
 
     def _save(self, model, optimizer, step: int, next_sample: int, skipped: int) -> Path | None:
         """Checkpoint this step (a collective); its directory on the main rank, None on the others."""
@@ -334,18 +346,11 @@ def _read_best(out: Path, validation) -> dict | None:
     return record if same else None
 
 
-def _improves(best: dict | None, scalars: dict[str, float], validation) -> bool:
-    """Whether this validation's ``keep_best`` metric beats the best so far (a NaN never does)."""
-    key = f"val/{validation.keep_best}"
-    if key not in scalars:
-        raise UserError(f"validation.keep_best {validation.keep_best!r} is not a validation metric; choose from "
-                        f"{', '.join(sorted(k.removeprefix('val/') for k in scalars))}")
-    value = scalars[key]
-    if value != value:
+def _beats(best: dict | None, value: float, mode: str) -> bool:
+    """Whether ``value`` beats the best record so far in direction ``mode`` (a NaN never does)."""
+    if math.isnan(value):
         return False
-    if best is None:
-        return True
-    return value < best["value"] if validation.keep_best_mode == "min" else value > best["value"]
+    return best is None or (value < best["value"] if mode == "min" else value > best["value"])
 
 
 def _publish_best(checkpoint: Path, out: Path, step: int, scalars: dict[str, float], validation) -> dict:
