@@ -1,6 +1,7 @@
 """The same training code under torchrun (gloo on CPU): DDP and FSDP (fully_shard) train a few steps,
 every rank ends with identical parameters, equal to one process that accumulates the same samples; a
-run stopped at a checkpoint and resumed under the same strategy ends bitwise equal."""
+run stopped at a checkpoint and resumed under the same strategy ends bitwise equal (weights, optimiser state and
+the average of the weights)."""
 
 from __future__ import annotations
 
@@ -67,8 +68,9 @@ def test_two_processes_train_to_identical_parameters(strategy, tmp_path, clip_di
 @pytest.mark.parametrize("strategy", ["ddp", "fsdp"])
 def test_resume_under_torchrun_restores_sharded_state_exactly(strategy, tmp_path, clip_dir):
     def config(steps: int) -> Path:
+        optim = {**fast_config(clip_dir)["optim"], "ema_decay": 0.5}  # the average is sharded and restored too
         return write_config(tmp_path / f"run{steps}.yaml", fast_config(
-            clip_dir, run={"max_steps": steps, "checkpoint_every": 2, "strategy": strategy}))
+            clip_dir, optim=optim, run={"max_steps": steps, "checkpoint_every": 2, "strategy": strategy}))
 
     torchrun(config(3), tmp_path / "straight", tmp_path / "a.json")
     torchrun(config(2), tmp_path / "stopped", tmp_path / "b.json")  # checkpoint at step 2, then exit
@@ -77,5 +79,8 @@ def test_resume_under_torchrun_restores_sharded_state_exactly(strategy, tmp_path
     straight = load_file(str(tmp_path / "straight" / "checkpoints" / "step-00000003" / "optimizer.safetensors"))
     resumed = load_file(str(tmp_path / "stopped" / "checkpoints" / "step-00000003" / "optimizer.safetensors"))
     assert straight.keys() == resumed.keys() and all(straight[k].equal(resumed[k]) for k in straight)
-    a, b = (load_file(str(tmp_path / d / "model.safetensors")) for d in ("straight", "stopped"))
-    assert all(a[k].equal(b[k]) for k in a)
+    for name in ("model.safetensors", "ema/model.safetensors"):
+        a, b = (load_file(str(tmp_path / d / name)) for d in ("straight", "stopped"))
+        assert all(a[k].equal(b[k]) for k in a)
+    weights, averaged = (load_file(str(tmp_path / "stopped" / n)) for n in ("model.safetensors", "ema/model.safetensors"))
+    assert any(not weights[k].equal(averaged[k]) for k in weights)  # the average was gathered, not the weights

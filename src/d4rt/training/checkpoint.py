@@ -7,6 +7,7 @@ Layout of one checkpoint, ``<run>/checkpoints/step-00001000/``:
 - ``optimizer.safetensors``: every optimiser state tensor, keyed ``<parameter name>/<state name>``
   (AdamW: ``step``, ``exp_avg``, ``exp_avg_sq``);
 - ``optimizer.json``: the parameter groups (hyper-parameters and parameter names);
+- ``ema/`` (with ``optim.ema_decay``): the averaged weights, a model directory like the checkpoint itself;
 - ``trainer.json``, written last: step, data position, learning-rate schedule, the RNG states of every
   rank, the training config and the size of every other file.
 
@@ -40,6 +41,7 @@ FORMAT_VERSION = 1
 OPTIMIZER_TENSORS = "optimizer.safetensors"
 OPTIMIZER_GROUPS = "optimizer.json"
 TRAINER_STATE = "trainer.json"
+EMA_DIR = "ema"
 _NAME = re.compile(r"^step-(\d{8,})$")
 
 
@@ -48,12 +50,14 @@ def checkpoint_name(step: int) -> str:
 
 
 def write_checkpoint(root: str | Path, step: int, model_state: dict[str, torch.Tensor], model_config: D4RTConfig,
-                     optimizer_state: dict, trainer_state: dict[str, Any]) -> Path:
+                     optimizer_state: dict, trainer_state: dict[str, Any],
+                     ema_state: dict[str, torch.Tensor] | None = None) -> Path:
     """Write checkpoint ``step`` under ``root`` atomically and return its directory.
 
     model_state: full model state dict (CPU tensors); optimizer_state: full optimiser state dict as
     ``torch.distributed.checkpoint.state_dict.get_optimizer_state_dict`` returns it (``state`` keyed by
-    parameter name); trainer_state: JSON-serialisable training state (see :mod:`d4rt.training.trainer`).
+    parameter name); trainer_state: JSON-serialisable training state (see :mod:`d4rt.training.trainer`);
+    ema_state: the full state dict of the averaged weights, written as the model directory ``ema/``.
     """
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
@@ -66,10 +70,12 @@ def write_checkpoint(root: str | Path, step: int, model_state: dict[str, torch.T
     tensors, groups = _split_optimizer_state(optimizer_state)
     save_file(tensors, str(temp / OPTIMIZER_TENSORS), metadata={"format": "pt"})
     _write_json(temp / OPTIMIZER_GROUPS, groups)
-    files = {p.name: p.stat().st_size for p in sorted(temp.iterdir())}
+    if ema_state is not None:
+        save_checkpoint(SimpleNamespace(state_dict=lambda: ema_state), model_config, temp / EMA_DIR)
+    files = {p.relative_to(temp).as_posix(): p.stat().st_size for p in sorted(temp.rglob("*")) if p.is_file()}
     _write_json(temp / TRAINER_STATE, {**trainer_state, "format_version": FORMAT_VERSION, "step": step,
                                        "files": files})
-    for path in temp.iterdir():
+    for path in sorted(temp.rglob("*"), reverse=True):  # files before the directories that hold them
         _fsync(path)
     _fsync(temp)
     if final.exists():  # a checkpoint of the same step from an earlier attempt: replace it
@@ -120,6 +126,17 @@ def read_checkpoint(path: str | Path) -> tuple[dict[str, torch.Tensor], dict, di
         raise UserError(f"checkpoint {path} has format version {trainer_state.get('format_version')}, "
                         f"this d4rt reads {FORMAT_VERSION}")
     return model_state, _join_optimizer_state(tensors, groups), trainer_state
+
+
+def read_ema(path: str | Path) -> dict[str, torch.Tensor] | None:
+    """The averaged weights of a complete checkpoint (its ``ema/`` directory), or None if it has none."""
+    weights = Path(path) / EMA_DIR / WEIGHTS_NAME
+    if not weights.is_file():
+        return None
+    try:
+        return load_file(str(weights))
+    except (SafetensorError, OSError) as err:
+        raise UserError(f"cannot read the averaged weights {weights}: {err}") from None
 
 
 def prune_checkpoints(root: str | Path, keep: int) -> None:

@@ -92,6 +92,9 @@ class OptimConfig:
     down to 1e-6; weight decay 0.03; gradient clipping at L2 norm 10).
 
     decay_steps: the step at which the cosine reaches ``min_lr``; None means ``run.max_steps``.
+    ema_decay: keep an exponential moving average of the weights with this per-step decay (e.g. 0.999,
+    about the last 1,000 steps); validation then scores the average and checkpoints hold it in ``ema/``
+    (:mod:`d4rt.training.ema`). None: no average (not in paper).
     betas, eps: AdamW's (not in paper; PyTorch defaults). Weight decay skips biases, LayerNorm
     parameters and position tables (VideoMAE v2's fine-tuning convention; not in paper).
     """
@@ -104,6 +107,7 @@ class OptimConfig:
     betas: tuple[float, float] = (0.9, 0.999)
     eps: float = 1e-8
     grad_clip: float = 10.0
+    ema_decay: float | None = None
 
 
 @dataclass
@@ -194,6 +198,8 @@ class TrainConfig:
             raise UserError(f"optim.decay_steps ({optim.decay_steps}) must exceed warmup_steps ({optim.warmup_steps})")
         if optim.weight_decay < 0 or optim.grad_clip <= 0 or optim.eps <= 0:
             raise UserError("optim.weight_decay must be >= 0, grad_clip and eps > 0")
+        if optim.ema_decay is not None and not 0 < optim.ema_decay < 1:
+            raise UserError(f"optim.ema_decay must lie in (0, 1) or be null, got {optim.ema_decay}")
         if not all(0 <= b < 1 for b in optim.betas):
             raise UserError(f"optim.betas must lie in [0, 1), got {optim.betas}")
         self.loss.validate()

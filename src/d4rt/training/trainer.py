@@ -5,7 +5,7 @@ step: set the scheduled learning rate, forward + loss + backward per micro-batch
 gradient sync only on the last micro-batch), clip the gradient norm, AdamW step. Every
 ``run.log_every`` steps the loss terms (averaged over ranks and micro-batches), learning rate, gradient
 norm and throughput are logged; every ``validation.every`` steps the model is validated on held-out
-clips; every ``run.checkpoint_every`` steps (and at the end) a checkpoint is written atomically and its
+clips (with ``optim.ema_decay``: the average of the weights); every ``run.checkpoint_every`` steps (and at the end) a checkpoint is written atomically and its
 weights are published as ``<run>/model.safetensors`` + ``<run>/config.json``.
 
 Run directory::
@@ -13,6 +13,7 @@ Run directory::
     <run>/model.safetensors, config.json   latest weights (D4RT.from_pretrained(<run>))
     <run>/train_config.yaml                 the resolved training config
     <run>/checkpoints/step-XXXXXXXX/        resumable checkpoints (see d4rt.training.checkpoint)
+    <run>/ema/                              with optim.ema_decay: the latest averaged weights (d4rt.training.ema)
     <run>/best/                             with validation.keep_best: the best-validated weights, best.json
     <run>/metrics.jsonl, tensorboard/       logs
 
@@ -54,6 +55,7 @@ from d4rt.training.distributed import (
     unwrap,
     wrap_model,
 )
+from d4rt.training.ema import WeightAverage
 from d4rt.training.logger import TrainLogger
 from d4rt.training.losses import d4rt_loss
 from d4rt.training.optimization import build_optimizer, learning_rate, set_learning_rate
@@ -102,6 +104,7 @@ class Trainer:
     def __init__(self, config: TrainConfig, out: str | Path, context: DistributedContext):
         self.model: torch.nn.Module | None = None
         self.optimizer: torch.optim.Optimizer | None = None
+        self.ema: WeightAverage | None = None
         self.config = config
         self.model_config: D4RTConfig = config.validate()
         self.out = Path(out)
@@ -155,15 +158,23 @@ class Trainer:
         found = context.broadcast_flag(latest is not None)
         if not found:
             return {}
-        model_tensors, optim_state, state = ({}, {}, None)
+        model_tensors, optim_state, state, averaged = ({}, {}, None, {})
         if context.is_main:
             model_tensors, optim_state, state = ckpt.read_checkpoint(latest)
             _check_resumable(state["config"], self.config.to_dict(), latest)
             check_state_dict(unwrap(model), model_tensors, f"checkpoint {latest}")
+            if self.ema is not None:
+                averaged = ckpt.read_ema(latest)
+                if averaged is None:
+                    raise UserError(f"checkpoint {latest} has no averaged weights (ema/) although optim.ema_decay is set")
+                check_state_dict(unwrap(model), averaged, f"averaged weights of checkpoint {latest}")
         if context.distributed:
             box = [state]
             dist.broadcast_object_list(box, src=0)
             state = box[0]
+        if self.ema is not None:  # the average goes through the model, which shards and broadcasts it as it should
+            load_model_state(model, averaged, context)
+            self.ema = WeightAverage(model, self.config.optim.ema_decay, int(state["ema_updates"]))
         load_model_state(model, model_tensors, context)
         load_optimizer_state(model, optimizer, optim_state, context)
         ranks = state["rng"]
@@ -177,6 +188,8 @@ class Trainer:
         latest = self._check_run_directory(resume)
         model = self.model = self._build_model()
         optimizer = self.optimizer = build_optimizer(model, cfg.optim)
+        if cfg.optim.ema_decay is not None:
+            self.ema = WeightAverage(model, cfg.optim.ema_decay)
         seed_rank(cfg.run.seed, context.rank)
         state = self._restore(model, optimizer, latest)
         step = int(state.get("step", 0))
@@ -221,6 +234,8 @@ class Trainer:
                     norm = norm.full_tensor() if hasattr(norm, "full_tensor") else norm  # FSDP: a DTensor
                     if torch.isfinite(norm):
                         optimizer.step()
+                        if self.ema is not None:
+                            self.ema.update()
                     else:  # the same decision on every rank: the norm is of the synchronised gradients
                         skipped += 1
                         logger.message(f"step {step}: non-finite gradient norm, update skipped")
@@ -271,6 +286,12 @@ class Trainer:
     # ------------------------------------------------------------------------------------------ outputs
     def _validate(self, model, validator: Validator) -> dict[str, float]:
         """Validation on rank 0 with an unsharded model (FSDP: gathered into a plain copy)."""
+        if self.ema is not None:
+            with self.ema.swapped_in():
+                return self._validate_weights(model, validator)
+        return self._validate_weights(model, validator)
+
+    def _validate_weights(self, model, validator: Validator) -> dict[str, float]:
         scalars: dict[str, float] = {}
         if self.strategy == "fsdp":
             full = model_state(model)  # collective
@@ -300,6 +321,11 @@ class Trainer:
         """Checkpoint this step (a collective); its directory on the main rank, None on the others."""
         context = self.context
         weights, optim = model_state(model), optimizer_state(model, optimizer)  # collectives
+        averaged = None
+        if self.ema is not None:
+            with self.ema.swapped_in():
+                # a collective; copied, because on one CPU process the state dict shares the parameters' storage
+                averaged = {name: value.clone() for name, value in model_state(model).items()}
         rng = capture_rng_state(context.device)
         if context.distributed:
             ranks = [None] * context.world_size
@@ -311,9 +337,13 @@ class Trainer:
                              "world_size": context.world_size, "strategy": self.strategy,
                              "lr": learning_rate(step - 1, self.config.optim, self.config.run.max_steps),
                              "rng": ranks, "config": self.config.to_dict()}
+            if self.ema is not None:
+                trainer_state["ema_updates"] = self.ema.updates
             root = self.out / "checkpoints"
-            path = ckpt.write_checkpoint(root, step, weights, self.model_config, optim, trainer_state)
+            path = ckpt.write_checkpoint(root, step, weights, self.model_config, optim, trainer_state, averaged)
             _publish_weights(path, self.out)
+            if averaged is not None:
+                _publish_weights(path / ckpt.EMA_DIR, self.out / ckpt.EMA_DIR)
             ckpt.prune_checkpoints(root, self.config.run.keep_checkpoints)
         context.barrier()
         return path if context.is_main else None
@@ -322,6 +352,7 @@ class Trainer:
 def _publish_weights(checkpoint: Path, out: Path) -> None:
     """Make ``out/model.safetensors`` and ``out/config.json`` the checkpoint's, each replaced atomically
     (hard links: checkpoint files are never modified, only deleted)."""
+    out.mkdir(exist_ok=True)
     for name in (WEIGHTS_NAME, CONFIG_NAME):
         temp = out / f".{name}.tmp-{os.getpid()}"
         temp.unlink(missing_ok=True)
@@ -354,9 +385,10 @@ def _beats(best: dict | None, value: float, mode: str) -> bool:
 
 
 def _publish_best(checkpoint: Path, out: Path, step: int, scalars: dict[str, float], validation) -> dict:
-    """Publish ``checkpoint``'s weights as ``<run>/best/`` and record why; returns the record."""
-    (out / BEST).mkdir(exist_ok=True)
-    _publish_weights(checkpoint, out / BEST)
+    """Publish ``checkpoint``'s validated weights (the average, where it holds one) as ``<run>/best/`` and
+    record why; returns the record."""
+    averaged = checkpoint / ckpt.EMA_DIR
+    _publish_weights(averaged if averaged.is_dir() else checkpoint, out / BEST)
     record = {"metric": validation.keep_best, "mode": validation.keep_best_mode, "step": step,
               "value": scalars[f"val/{validation.keep_best}"]}
     ckpt.write_file_atomically(out / BEST / "best.json", (json.dumps(record, indent=1) + "\n").encode())
