@@ -15,8 +15,8 @@ Sources (docs/model-card/, each written by the command named in MODEL_CARD.md):
 - ``focal.json`` (tools/measure_focal.py): focal-length errors, which ``d4rt eval`` does not score;
 - ``shipped-weights.json`` (optional; written by hand): either ``{"stages", "weights", "command"}``, the shipped
   weights are an average of stages' weights (tools/average_weights.py), or ``{"stage", "step", "rule"}``, they
-  are a kept checkpoint of the last stage, chosen by the rule in the named config; without it they are the
-  last stage's final weights.
+  are a kept checkpoint of the last stage (with ``"average": "ema"``, its moving average of the weights at that
+  step), chosen by the rule in the named config; without it they are the last stage's final weights.
 
 Each generated section sits between ``<!-- BEGIN name -->`` and ``<!-- END name -->`` markers; the text
 around them is written by hand and never holds a measured number.
@@ -90,9 +90,13 @@ def training_section(stages: dict[int, dict], shipped: dict | None = None) -> st
     seconds = sum(s["training_seconds"] for s in stages.values())
     rows += [["total", f"{steps:,} steps, {seconds / 60:.0f} min of optimiser steps"]]
     if shipped is not None and "step" in shipped:
-        rows += [["shipped weights", f"stage {shipped['stage']}'s checkpoint at step {shipped['step']:,} of "
-                                     f"{stages[shipped['stage']]['steps']:,} (the total counts the whole stage), "
-                                     f"chosen by the rule written in `{shipped['rule']}` before it ran"]]
+        stage = stages[shipped["stage"]]
+        what = (f"the moving average of stage {shipped['stage']}'s weights (optim.ema_decay "
+                f"{stage['config']['optim']['ema_decay']:g})" if shipped.get("average") == "ema"
+                else f"stage {shipped['stage']}'s checkpoint")
+        rows += [["shipped weights", f"{what} at step {shipped['step']:,} of {stage['steps']:,} (the total counts "
+                                     f"the whole stage), chosen by the rule written in `{shipped['rule']}` before "
+                                     "it ran"]]
     elif shipped is not None:
         parts = " + ".join(f"{w:g} x stage {s}" for s, w in zip(shipped["stages"], shipped["weights"]))
         rows += [["shipped weights", f"the average {parts} (`{shipped['command']}`): no further training"]]
