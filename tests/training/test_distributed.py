@@ -82,5 +82,6 @@ def test_resume_under_torchrun_restores_sharded_state_exactly(strategy, tmp_path
     for name in ("model.safetensors", "ema/model.safetensors"):
         a, b = (load_file(str(tmp_path / d / name)) for d in ("straight", "stopped"))
         assert all(a[k].equal(b[k]) for k in a)
-    weights, averaged = (load_file(str(tmp_path / "stopped" / n)) for n in ("model.safetensors", "ema/model.safetensors"))
+    weights, averaged = (load_file(str(tmp_path / "stopped" / name))
+                         for name in ("model.safetensors", "ema/model.safetensors"))
     assert any(not weights[k].equal(averaged[k]) for k in weights)  # the average was gathered, not the weights

@@ -65,7 +65,6 @@ def test_checkpoints_hold_the_average_of_every_step_and_a_resume_is_bitwise_exac
     published = load_file(str(out / "ema/model.safetensors"))
     assert all(published[n].equal(state[n]) for n in names)
     assert any(not published[n].equal(weights[n]) for n in names)  # the average is not the last weights
-    assert json.loads((out / "checkpoints/step-00000006/trainer.json").read_text())["ema_updates"] == 6
 
     # Stopped after 4 steps and resumed to 6: the same weights and the same average, bit for bit.
     resumed = tmp_path / "resumed"

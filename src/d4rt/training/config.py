@@ -92,9 +92,9 @@ class OptimConfig:
     down to 1e-6; weight decay 0.03; gradient clipping at L2 norm 10).
 
     decay_steps: the step at which the cosine reaches ``min_lr``; None means ``run.max_steps``.
-    ema_decay: keep an exponential moving average of the weights with this per-step decay (e.g. 0.999,
-    about the last 1,000 steps); validation then scores the average and checkpoints hold it in ``ema/``
-    (:mod:`d4rt.training.ema`). None: no average (not in paper).
+    ema_decay: keep an exponential moving average of the weights with this per-step decay (e.g. 0.999:
+    about the last 1,000 steps once its warm-up is over, after ~9,000 steps); validation then scores the
+    average and checkpoints hold it in ``ema/`` (:mod:`d4rt.training.ema`). None: no average (not in paper).
     betas, eps: AdamW's (not in paper; PyTorch defaults). Weight decay skips biases, LayerNorm
     parameters and position tables (VideoMAE v2's fine-tuning convention; not in paper).
     """

@@ -4,9 +4,10 @@ One optimiser step = ``run.grad_accum`` micro-batches of ``data.batch_size`` cli
 step: set the scheduled learning rate, forward + loss + backward per micro-batch (bf16 autocast on GPU;
 gradient sync only on the last micro-batch), clip the gradient norm, AdamW step. Every
 ``run.log_every`` steps the loss terms (averaged over ranks and micro-batches), learning rate, gradient
-norm and throughput are logged; every ``validation.every`` steps the model is validated on held-out
-clips (with ``optim.ema_decay``: the average of the weights); every ``run.checkpoint_every`` steps (and at the end) a checkpoint is written atomically and its
-weights are published as ``<run>/model.safetensors`` + ``<run>/config.json``.
+norm and throughput are logged; every ``validation.every`` steps the model (with ``optim.ema_decay``: the
+average of its weights) is validated on held-out clips; every ``run.checkpoint_every`` steps (and at the end)
+a checkpoint is written atomically and its weights are published as ``<run>/model.safetensors`` +
+``<run>/config.json``.
 
 Run directory::
 
@@ -158,23 +159,26 @@ class Trainer:
         found = context.broadcast_flag(latest is not None)
         if not found:
             return {}
+        decay = self.config.optim.ema_decay
         model_tensors, optim_state, state, averaged = ({}, {}, None, {})
         if context.is_main:
             model_tensors, optim_state, state = ckpt.read_checkpoint(latest)
             _check_resumable(state["config"], self.config.to_dict(), latest)
             check_state_dict(unwrap(model), model_tensors, f"checkpoint {latest}")
-            if self.ema is not None:
+            if decay is not None:
                 averaged = ckpt.read_ema(latest)
                 if averaged is None:
-                    raise UserError(f"checkpoint {latest} has no averaged weights (ema/) although optim.ema_decay is set")
+                    raise UserError(f"checkpoint {latest} has no averaged weights (ema/) although "
+                                    "optim.ema_decay is set")
                 check_state_dict(unwrap(model), averaged, f"averaged weights of checkpoint {latest}")
         if context.distributed:
             box = [state]
             dist.broadcast_object_list(box, src=0)
             state = box[0]
-        if self.ema is not None:  # the average goes through the model, which shards and broadcasts it as it should
+        if decay is not None:  # through the model, which shards and broadcasts the average as it should
             load_model_state(model, averaged, context)
-            self.ema = WeightAverage(model, self.config.optim.ema_decay, int(state["ema_updates"]))
+            # one update per applied optimiser step
+            self.ema = WeightAverage(model, decay, int(state["step"]) - int(state["skipped_steps"]))
         load_model_state(model, model_tensors, context)
         load_optimizer_state(model, optimizer, optim_state, context)
         ranks = state["rng"]
@@ -188,10 +192,10 @@ class Trainer:
         latest = self._check_run_directory(resume)
         model = self.model = self._build_model()
         optimizer = self.optimizer = build_optimizer(model, cfg.optim)
-        if cfg.optim.ema_decay is not None:
-            self.ema = WeightAverage(model, cfg.optim.ema_decay)
         seed_rank(cfg.run.seed, context.rank)
-        state = self._restore(model, optimizer, latest)
+        state = self._restore(model, optimizer, latest)  # restores the average of a resumed run
+        if cfg.optim.ema_decay is not None and self.ema is None:
+            self.ema = WeightAverage(model, cfg.optim.ema_decay)
         step = int(state.get("step", 0))
         next_sample = int(state.get("next_sample", 0))
         skipped = int(state.get("skipped_steps", 0))
@@ -337,8 +341,6 @@ class Trainer:
                              "world_size": context.world_size, "strategy": self.strategy,
                              "lr": learning_rate(step - 1, self.config.optim, self.config.run.max_steps),
                              "rng": ranks, "config": self.config.to_dict()}
-            if self.ema is not None:
-                trainer_state["ema_updates"] = self.ema.updates
             root = self.out / "checkpoints"
             path = ckpt.write_checkpoint(root, step, weights, self.model_config, optim, trainer_state, averaged)
             _publish_weights(path, self.out)
