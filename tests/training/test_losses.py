@@ -81,6 +81,31 @@ def test_weights_and_confidence_switch():
     assert doubled.item() == pytest.approx(2 * LOG2 - 0.2 * LOG2 / 2, rel=1e-6)
 
 
+def test_confidence_stop_gradient_splits_the_gradients():
+    """Points get plain L3D's gradient, the confidence the paper's; a bad combination is refused."""
+    batch = two_query_batch()
+
+    def gradients(config):
+        pred = perfect(batch)
+        pred["points"] = torch.tensor([[[0.0, 0.0, 2.0], [2.0, 0.0, 2.0]]], requires_grad=True)
+        pred["confidence"] = torch.tensor([[1.0, 2.0]], requires_grad=True)
+        total, terms = d4rt_loss(pred, batch, config)
+        total.backward()
+        return total, terms, pred["points"].grad, pred["confidence"].grad
+
+    quiet = dict(weight_visibility=0.0, weight_motion=0.0)
+    total, terms, points_grad, confidence_grad = gradients(LossConfig(confidence_stop_gradient=True, **quiet))
+    _, _, plain_points_grad, _ = gradients(LossConfig(confidence_weighting=False, **quiet))
+    _, paper_terms, paper_points_grad, paper_confidence_grad = gradients(LossConfig(**quiet))
+    torch.testing.assert_close(points_grad, plain_points_grad)
+    torch.testing.assert_close(confidence_grad, paper_confidence_grad)
+    assert not torch.allclose(points_grad, paper_points_grad)  # c = 2 doubled the paper's gradient there
+    assert total.item() == pytest.approx(LOG2 / 2 + LOG2 - 0.2 * LOG2 / 2, rel=1e-6)  # L3D + c L3D - w log c
+    assert terms["3d_confident"].item() == pytest.approx(paper_terms["3d_confident"].item())
+    with pytest.raises(UserError, match="confidence_stop_gradient needs confidence_weighting"):
+        LossConfig(confidence_weighting=False, confidence_stop_gradient=True).validate()
+
+
 @pytest.mark.parametrize("scale", [1e-3, 0.37, 7.0, 1e4])
 def test_l3d_is_invariant_to_scaling_prediction_or_target(scale):
     g = torch.Generator().manual_seed(0)

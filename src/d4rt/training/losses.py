@@ -75,6 +75,11 @@ class LossConfig:
 
     confidence_weighting: multiply L3D by the predicted confidence c and add ``-w_conf * log(c)``
         (Kendall & Gal). False trains plain L3D (the paper's "no confidence" ablation).
+    confidence_stop_gradient: (not in paper; needs confidence_weighting) the confidence learns exactly as
+        above, from ``c * L3D`` with L3D detached, while the points learn from plain L3D. Why: at the
+        confidence's optimum c = w_conf / L3D, so ``c * L3D`` gives each query's points a gradient scaled
+        by 1 / L3D: the hardest queries (far sky, whose depth then decides a sequence's L1 depth alignment)
+        learn least. The confidence keeps its meaning (it still ranks queries by their expected error).
     """
 
     weight_3d: float = 1.0
@@ -84,6 +89,7 @@ class LossConfig:
     weight_motion: float = 0.1
     weight_normal: float = 0.5
     confidence_weighting: bool = True
+    confidence_stop_gradient: bool = False
     normalise_motion: bool = True
     weight_pose: float = 0.0
     pose_translation: str = "l1"
@@ -99,6 +105,8 @@ class LossConfig:
         if self.pose_translation not in POSE_TRANSLATION_ERRORS:
             raise UserError(f"loss pose_translation must be one of {', '.join(POSE_TRANSLATION_ERRORS)}, "
                             f"got {self.pose_translation!r}")
+        if self.confidence_stop_gradient and not self.confidence_weighting:
+            raise UserError("loss confidence_stop_gradient needs confidence_weighting (there is no confidence term)")
         if self.confidence_weighting and self.weight_confidence <= 0:
             raise UserError("loss weight_confidence must be > 0 with confidence_weighting (else c collapses to 0)")
 
@@ -168,8 +176,11 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
     confidence = p["confidence"]
     log_conf = torch.log(confidence)
     if config.confidence_weighting:
-        weighted_3d = masked_mean(confidence * l3d, valid)
+        error = l3d.detach() if config.confidence_stop_gradient else l3d
+        weighted_3d = masked_mean(confidence * error, valid)
         point_term = config.weight_3d * weighted_3d - config.weight_confidence * masked_mean(log_conf, valid)
+        if config.confidence_stop_gradient:  # the points' own term
+            point_term = point_term + config.weight_3d * masked_mean(l3d, valid)
     else:
         weighted_3d = masked_mean(l3d, valid)
         point_term = config.weight_3d * weighted_3d
