@@ -31,10 +31,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from d4rt.errors import UserError
 from d4rt.evaluation.benchmarks import Benchmark
 from d4rt.evaluation.harness import aggregate, evaluate_sequence
 from d4rt.evaluation.predictions import d4rt_predictor
-from d4rt.evaluation.synthetic_benchmark import NUM_CLIPS, clip_specs
+from d4rt.evaluation.synthetic_benchmark import NUM_CLIPS, SIZES, clip_specs
 
 HELD_OUT_SEED = 9_000_000
 PROBE = Benchmark("depth-probe", "held-out clips drawn like synthetic-dynamic-v1", None, ("depth",))
@@ -42,8 +43,9 @@ PROBE = Benchmark("depth-probe", "held-out clips drawn like synthetic-dynamic-v1
 
 def probe_indices() -> list[int]:
     """16 clip definitions: one per field-of-view band, then a second size per band (every size as often)."""
-    bands = range(NUM_CLIPS // 6)
-    return [6 * band + 2 * band % 6 for band in bands] + [6 * band + (2 * band + 3) % 6 for band in bands]
+    sizes, bands = len(SIZES), range(NUM_CLIPS // len(SIZES))
+    return ([sizes * band + 2 * band % sizes for band in bands]
+            + [sizes * band + (2 * band + 3) % sizes for band in bands])
 
 
 def render_probe_clips(count: int) -> list:
@@ -51,8 +53,7 @@ def render_probe_clips(count: int) -> list:
     return [replace(specs[i], seed=HELD_OUT_SEED + i).render() for i in probe_indices()[:count]]
 
 
-def probe(checkpoint: str, sequences: list) -> dict:
-    predictor = d4rt_predictor(checkpoint)
+def probe(predictor, sequences: list) -> dict:
     rows = []
     with torch.no_grad():
         for sequence in sequences:
@@ -69,17 +70,23 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoints", nargs="+")
     parser.add_argument("--out", required=True)
-    parser.add_argument("--clips", type=int, default=16, help="how many of the 16 held-out clips (default 16)")
+    available = len(probe_indices())
+    parser.add_argument("--clips", type=int, default=available,
+                        help=f"how many of the {available} held-out clips (default {available})")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     args = parser.parse_args()
-    if not 1 <= args.clips <= 16:
-        parser.error(f"--clips must be 1-16, got {args.clips}")
+    if not 1 <= args.clips <= available:
+        parser.error(f"--clips must be 1-{available}, got {args.clips}")
     torch.set_num_threads(args.threads)
+    try:  # every checkpoint loads (strictly) before the clips are rendered: a bad path fails in one line, at once
+        predictors = {checkpoint: d4rt_predictor(checkpoint) for checkpoint in args.checkpoints}
+    except UserError as error:
+        parser.error(str(error))
     sequences = render_probe_clips(args.clips)
     report = {"held_out_seed": HELD_OUT_SEED, "clip_definitions": probe_indices()[:args.clips], "models": {}}
-    for checkpoint in args.checkpoints:
+    for checkpoint, predictor in predictors.items():
         start = time.perf_counter()
-        report["models"][str(checkpoint)] = row = probe(checkpoint, sequences)
+        report["models"][str(checkpoint)] = row = probe(predictor, sequences)
         print(checkpoint, "median clip AbsRel (s&s)", row["median_clip_abs_rel[scale&shift]"],
               "AbsRel (s&s)", row["abs_rel[scale&shift]"], "delta<1.25 (s&s)",
               row["delta<1.25[scale&shift]"], "AbsRel (scale)", row["abs_rel[scale]"],

@@ -12,7 +12,8 @@ Which ground truth each term needs (``valid`` and ``uv_valid`` come from the dat
 ======================  =============  =====================================================================
 term                    mask           why
 ======================  =============  =====================================================================
-L3D, confidence         ``valid``      the query pixel shows a surface (no sky, no missing depth)
+L3D, confidence         ``valid``      the query pixel has a true 3D point (real data's sky has none; the
+                                       synthetic sky dome has one, and is supervised)
 motion                  ``valid``      defined for every existing surface point, in camera t_cam
 normals                 ``valid``      and ``normals_valid`` when the batch has it (track data has no normals)
 visibility              ``valid``      a point behind camera t_tgt or outside its image is simply *not
