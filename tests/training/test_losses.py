@@ -106,6 +106,32 @@ def test_confidence_stop_gradient_splits_the_gradients():
         LossConfig(confidence_weighting=False, confidence_stop_gradient=True).validate()
 
 
+def test_log_depth_term_by_hand_scale_invariant_and_masked():
+    """|log(z_pred / s_pred) - log(z_target / s_target)| over the targets in front of the camera."""
+    batch = two_query_batch()
+    batch["points"] = torch.tensor([[[0.0, 0.0, 2.0], [0.0, 0.0, 6.0], [0.0, 0.0, -4.0]]])  # mean |z| = 4
+    for key, value in {"uv": torch.zeros(1, 3, 2), "visibility": torch.zeros(1, 3), "motion": torch.zeros(1, 3, 3),
+                       "normals": torch.zeros(1, 3, 3), "valid": torch.ones(1, 3, dtype=torch.bool),
+                       "uv_valid": torch.zeros(1, 3, dtype=torch.bool)}.items():
+        batch[key] = value
+    pred = perfect(batch)
+    # pred mean |z| = 4 as well: query 0 is 2x too near, query 1 right; query 2 (behind camera) is not counted.
+    pred["points"] = torch.tensor([[[0.0, 0.0, 1.0], [0.0, 0.0, 6.0], [0.0, 0.0, -5.0]]], requires_grad=True)
+    config = LossConfig(weight_log_depth=0.5)
+    total, terms = d4rt_loss(pred, batch, config)
+    assert terms["log_depth"].item() == pytest.approx(LOG2 / 2, rel=1e-6)
+    without, off_terms = d4rt_loss(pred, batch, LossConfig())
+    assert "log_depth" not in off_terms
+    assert (total - without).item() == pytest.approx(0.5 * LOG2 / 2, rel=1e-5)
+    total.backward()
+    assert torch.isfinite(pred["points"].grad).all()
+    for scale in (1e-3, 7.0, 1e4):  # invariant to a positive scale of the prediction
+        scaled = perfect(batch) | {"points": pred["points"].detach() * scale}
+        assert d4rt_loss(scaled, batch, config)[1]["log_depth"].item() == pytest.approx(LOG2 / 2, rel=1e-5)
+    with pytest.raises(UserError, match="weight_log_depth must be a number >= 0"):
+        LossConfig(weight_log_depth=-1.0).validate()
+
+
 @pytest.mark.parametrize("scale", [1e-3, 0.37, 7.0, 1e4])
 def test_l3d_is_invariant_to_scaling_prediction_or_target(scale):
     g = torch.Generator().manual_seed(0)

@@ -50,6 +50,14 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   force whatever its true translation, so the many clips whose camera barely travels (pans, a camera
   held still) outvote the few whose parallax shows the direction of travel, and the head stays at zero
   translation (stage 10, docs/training.md); the squared error's push grows with the true translation.
+- *Log depth* (not in paper; ``weight_log_depth`` > 0): ``|log(z_pred / s_pred) - log(z_target / s_target)|``
+  on the queries whose target lies in front of camera t_cam, each side divided by its own per-clip mean
+  depth ``s`` (as L3D, so the term is scale-invariant). Why: L3D's log-compressed coordinates weigh the ratio
+  of far to near depth weakly (a sky predicted 6x too near and near ground 2x too far cost L3D less than 1
+  per query), while a depth map's relative error (AbsRel, after one alignment per sequence) is decided by
+  that ratio; the log depth costs a ratio's error the same at every depth. A prediction below
+  ``_MIN_LOG_DEPTH`` of its clip's mean depth (or behind the camera) gets no gradient from this term; L3D
+  still pulls it.
 """
 
 from __future__ import annotations
@@ -68,6 +76,8 @@ PREDICTION_KEYS = ("points", "uv", "visibility_logit", "motion", "normals", "con
 POSE_TRANSLATION_ERRORS = ("l1", "squared")
 # Guards a degenerate all-zero prediction only; real scenes are many orders of magnitude deeper.
 _MIN_SCALE = 1e-12
+# Lowest normalised depth the log-depth term takes a log of (1/1000 of the clip's mean depth).
+_MIN_LOG_DEPTH = 1e-3
 
 
 @dataclass
@@ -81,6 +91,7 @@ class LossConfig:
         confidence's optimum c = w_conf / L3D, so ``c * L3D`` gives each query's points a gradient scaled
         by 1 / L3D: the hardest queries (far sky, whose depth then decides a sequence's L1 depth alignment)
         learn least. The confidence keeps its meaning (it still ranks queries by their expected error).
+    weight_log_depth: (not in paper) weight of the scale-invariant log-depth term (module docstring); 0 = off.
     """
 
     weight_3d: float = 1.0
@@ -95,11 +106,12 @@ class LossConfig:
     weight_pose: float = 0.0
     pose_translation: str = "l1"
     weight_pose_translation: float | None = None
+    weight_log_depth: float = 0.0
 
     def validate(self) -> None:
         optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
-                     "weight_normal", "weight_pose", *optional):
+                     "weight_normal", "weight_pose", "weight_log_depth", *optional):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
                 raise UserError(f"loss {name} must be a number >= 0, got {value!r}")
@@ -143,6 +155,20 @@ def point_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> 
     return (log_compress(pred_n) - log_compress(target_n)).abs().sum(-1)
 
 
+def log_depth_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-query scale-invariant log-depth error (module docstring) and where it is defined.
+
+    pred, target: (B, N, 3) in each query's camera t_cam; mask: (B, N) bool (queries with a true point).
+    Returns ``(error (B, N), in_front (B, N) bool)``: ``in_front`` is ``mask`` where the target's z > 0.
+    """
+    in_front = mask & (target[..., 2] > 0)
+    pred_z = pred[..., 2] / mean_depth(pred, mask)[:, None]
+    target_z = target[..., 2] / mean_depth(target, mask)[:, None]
+    error = torch.log(pred_z.clamp_min(_MIN_LOG_DEPTH)) - torch.log(target_z.clamp_min(_MIN_LOG_DEPTH))
+    return error.abs(), in_front
+
+
 def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
               config: LossConfig | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """The total training loss and every term, from a batched forward and its targets.
@@ -159,7 +185,8 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
     Returns:
         ``(total, terms)``: the scalar to minimise and a dict of detached scalars, each unweighted:
         ``3d`` (plain L3D), ``3d_confident`` (c * L3D), ``confidence`` (-log c), ``2d``, ``visibility``,
-        ``motion``, ``normal``, plus ``confidence_mean`` (mean c) and ``valid_fraction``, ``uv_fraction``.
+        ``motion``, ``normal``, plus ``confidence_mean`` (mean c) and ``valid_fraction``, ``uv_fraction``;
+        with their weights > 0 also ``pose_rotation``, ``pose_translation`` and ``log_depth``.
     """
     config = config or LossConfig()
     p = {k: pred[k].float() for k in PREDICTION_KEYS}
@@ -198,14 +225,18 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
 
     total = (point_term + config.weight_2d * l2d + config.weight_visibility * lvis
              + config.weight_motion * lmotion + config.weight_normal * lnormal)
-    pose_terms = {}
+    optional_terms = {}
     if config.weight_pose > 0:
         lrot, ltrans = pose_loss(pred, batch, mean_depth(p["points"], valid).detach(),
                                  mean_depth(target_points, valid), config.pose_translation)
         weight_translation = config.weight_pose if config.weight_pose_translation is None \
             else config.weight_pose_translation
         total = total + config.weight_pose * lrot + weight_translation * ltrans
-        pose_terms = {"pose_rotation": lrot, "pose_translation": ltrans}
+        optional_terms = {"pose_rotation": lrot, "pose_translation": ltrans}
+    if config.weight_log_depth > 0:
+        log_depth, in_front = log_depth_loss(p["points"], target_points, valid)
+        optional_terms["log_depth"] = masked_mean(log_depth, in_front)
+        total = total + config.weight_log_depth * optional_terms["log_depth"]
     terms = {
         "3d": masked_mean(l3d, valid),
         "3d_confident": weighted_3d if config.confidence_weighting else masked_mean(confidence * l3d, valid),
@@ -218,7 +249,7 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         "valid_fraction": valid.float().mean(),
         "uv_fraction": uv_valid.float().mean(),
         "total": total,
-    } | pose_terms
+    } | optional_terms
     return total, {k: v.detach() for k, v in terms.items()}
 
 
