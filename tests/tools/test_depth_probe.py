@@ -1,0 +1,49 @@
+"""tools/depth_probe.py: the far/near depth ratio by hand, and a probe that scores exact depth as exact."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from d4rt.evaluation.predictions import Prediction
+from d4rt.evaluation.sequence import EvalSequence
+
+SCRIPT = Path(__file__).resolve().parents[2] / "tools" / "depth_probe.py"
+spec = importlib.util.spec_from_file_location("depth_probe", SCRIPT)
+depth_probe = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(depth_probe)
+
+
+def outdoor_depth() -> np.ndarray:
+    """(2, 4, 4): a top half of sky at 50, a bottom half of ground at 2 and 4."""
+    depth = np.full((2, 4, 4), 50.0, np.float32)
+    depth[:, 2:, :2], depth[:, 2:, 2:] = 2.0, 4.0
+    return depth
+
+
+def test_far_near_ratio_by_hand():
+    true = outdoor_depth()
+    assert depth_probe.far_near_ratio(true * 3, true) == pytest.approx((50 / 3.0, 50 / 3.0))
+    squeezed = np.where(true > 30, 10.0, true)  # the sky 5x too near
+    assert depth_probe.far_near_ratio(squeezed, true) == pytest.approx((10 / 3.0, 50 / 3.0))
+    room = np.where(true > 30, 6.0, true)  # nothing beyond 30: no ratio
+    assert depth_probe.far_near_ratio(room, room) is None
+    assert depth_probe.far_near_ratio(-true, true) is None  # a non-positive near median has no ratio
+
+
+def test_probe_scores_exact_depth_as_exact_and_a_squeezed_sky_as_such():
+    true = outdoor_depth()
+    sequence = EvalSequence("outdoor", np.zeros((2, 4, 4, 3), np.uint8), depth=true)
+    exact = depth_probe.probe(SimpleNamespace(predict=lambda seq, tasks: Prediction(depth=seq.depth * 2.5)),
+                              [sequence])
+    assert exact["abs_rel[scale&shift]"] == pytest.approx(0.0, abs=1e-4)
+    assert exact["far_near_log_error"] == pytest.approx(0.0, abs=1e-6)
+    assert exact["clips"][0]["far_near_ratio"] == {"predicted": 16.667, "true": 16.667}
+    squeezed = depth_probe.probe(
+        SimpleNamespace(predict=lambda seq, tasks: Prediction(depth=np.where(seq.depth > 30, 10.0, seq.depth))),
+        [sequence])
+    assert squeezed["far_near_log_error"] == pytest.approx(np.log(5.0), abs=1e-3)
