@@ -17,8 +17,8 @@ Also reported: the median over clips of each clip's AbsRel. Why: the alignment m
 itself, so in an outdoor clip whose model depth range is too narrow the far pixels (tens of metres) decide the
 scale and every near pixel's relative error can reach 10x or more (the shipped weights on held-out clip 34:
 AbsRel 9.6, where its other seven clips are 0.12-0.55); with 8-16 clips one such clip outweighs all the others.
-Also reported, because no alignment can hide it: per clip with pixels truly beyond 30 and within 10 (outdoor clips;
-rooms are at most about 9 deep), the ratio of the median predicted depth of the far pixels to that of the near
+Also reported, because no alignment can hide it: per clip with pixels truly beyond 30 and within 10 (outdoor clips:
+no room reaches 15), the ratio of the median predicted depth of the far pixels to that of the near
 ones, beside the true ratio, and over those clips the median of |log(predicted / true ratio)|
 (``far_near_log_error``; 0 = the far range in the right proportion to the near one).
 Writes JSON (per checkpoint the aggregate and per-clip rows) and prints one line per checkpoint.
@@ -61,15 +61,15 @@ def render_probe_clips(count: int) -> list:
 
 def far_near_ratio(pred: np.ndarray, true: np.ndarray) -> tuple[float, float] | None:
     """(predicted, true) ratio of the median depth of the pixels truly beyond FAR_DEPTH to that of the pixels
-    truly within NEAR_DEPTH (0 < depth). pred, true: (T, H, W). None when either set is empty or the
-    predicted near median is not positive (no ratio to speak of)."""
+    truly within NEAR_DEPTH (0 < depth). pred, true: (T, H, W). None when either set is empty or either
+    predicted median is not positive (no ratio to speak of)."""
     far, near = true > FAR_DEPTH, (true > 0) & (true < NEAR_DEPTH)
     if not far.any() or not near.any():
         return None
-    pred_near = float(np.median(pred[near]))
-    if pred_near <= 0:
+    pred_far, pred_near = float(np.median(pred[far])), float(np.median(pred[near]))
+    if pred_far <= 0 or pred_near <= 0:
         return None
-    return float(np.median(pred[far])) / pred_near, float(np.median(true[far]) / np.median(true[near]))
+    return pred_far / pred_near, float(np.median(true[far]) / np.median(true[near]))
 
 
 def probe(predictor, sequences: list) -> dict:
@@ -83,7 +83,7 @@ def probe(predictor, sequences: list) -> dict:
     for align in PROBE.depth_alignments:  # robust to one clip whose alignment the far pixels decide (see above)
         summary[f"median_clip_abs_rel[{align}]"] = round(float(np.median([r.metrics[f"abs_rel[{align}]"]
                                                                           for r in rows])), 4)
-    log_errors = [abs(np.log(r[0] / r[1])) for r in ratios.values() if r is not None and r[0] > 0]
+    log_errors = [abs(np.log(r[0] / r[1])) for r in ratios.values() if r is not None]
     summary["far_near_log_error"] = round(float(np.median(log_errors)), 4) if log_errors else None
     clips = []
     for r in rows:

@@ -32,7 +32,8 @@ def test_far_near_ratio_by_hand():
     assert depth_probe.far_near_ratio(squeezed, true) == pytest.approx((10 / 3.0, 50 / 3.0))
     room = np.where(true > 30, 6.0, true)  # nothing beyond 30: no ratio
     assert depth_probe.far_near_ratio(room, room) is None
-    assert depth_probe.far_near_ratio(-true, true) is None  # a non-positive near median has no ratio
+    assert depth_probe.far_near_ratio(-true, true) is None  # a non-positive predicted median has no ratio
+    assert depth_probe.far_near_ratio(np.where(true > 30, -1.0, true), true) is None
 
 
 def test_probe_scores_exact_depth_as_exact_and_a_squeezed_sky_as_such():
