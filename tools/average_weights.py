@@ -5,8 +5,12 @@
 Averaging a fine-tuned model with the model it started from keeps much of what fine-tuning gained while
 undoing part of its drift (Wortsman et al., "Robust fine-tuning of zero-shot models", 2022: WiSE-FT); it
 costs no training. Every checkpoint must have the same config (the averaged model's) and the same
-tensors; weights must be positive and are normalised to sum to 1. Writes ``config.json`` and
-``model.safetensors`` (D4RT.from_pretrained reads them) and prints what it averaged.
+tensors, with one exception: a model trained with the relative-pose head from one without it (the trainer's
+``init_from`` allows exactly that addition) may be averaged with it. The average then has the head, whose
+tensors come from the checkpoints that have one (their weights renormalised among them), and the config of
+the first of those (its ``pose_pairs`` too, which they must share). Weights must be positive and are
+normalised to sum to 1. Writes ``config.json`` and ``model.safetensors`` (D4RT.from_pretrained reads them)
+and prints what it averaged.
 """
 
 from __future__ import annotations
@@ -18,8 +22,28 @@ from pathlib import Path
 import torch
 from safetensors.torch import load_file, save_file
 
+from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
 from d4rt.model.weights import CONFIG_NAME, WEIGHTS_NAME
+
+# The tensors of the one part a checkpoint may lack (see the module docstring).
+POSE_HEAD_PREFIX = "decoder.heads.relative_pose."
+
+
+def _shared_config(texts: list[str]) -> str:
+    """The averaged model's config.json text: the checkpoints' common config, or, when some add the
+    relative-pose head, the config of the first that has it."""
+    if all(json.loads(t) == json.loads(texts[0]) for t in texts):
+        return texts[0]
+    configs = [D4RTConfig.from_dict(json.loads(t)) for t in texts]
+    headed = [c for c in configs if c.relative_pose_head]
+    if any(c.replace(relative_pose_head=False, pose_pairs="first") != configs[0].replace(
+            relative_pose_head=False, pose_pairs="first") for c in configs) or not headed:
+        raise UserError("the checkpoints have different configs: only one architecture can be averaged")
+    if any(c.pose_pairs != headed[0].pose_pairs for c in headed):
+        raise UserError("the checkpoints with a relative-pose head name different pose_pairs: set one in their "
+                        "config.json files")
+    return texts[configs.index(headed[0])]
 
 
 def average(directories: list[Path], weights: list[float]) -> tuple[dict[str, torch.Tensor], str]:
@@ -29,23 +53,23 @@ def average(directories: list[Path], weights: list[float]) -> tuple[dict[str, to
         raise UserError("give at least two checkpoints and one weight per checkpoint")
     if any(w <= 0 for w in weights):
         raise UserError(f"weights must be positive, got {weights}")
-    total = sum(weights)
-    configs = [(d / CONFIG_NAME).read_text() for d in directories]
-    if any(json.loads(c) != json.loads(configs[0]) for c in configs):
-        raise UserError("the checkpoints have different configs: only one architecture can be averaged")
+    config = _shared_config([(d / CONFIG_NAME).read_text() for d in directories])
     states = [load_file(str(d / WEIGHTS_NAME)) for d in directories]
-    if any(s.keys() != states[0].keys() for s in states):
+    keys = sorted(set().union(*(s.keys() for s in states)))
+    if any(not key.startswith(POSE_HEAD_PREFIX) for s in states for key in set(keys) - s.keys()):
         raise UserError("the checkpoints hold different tensors")
     out = {}
-    for key, first in states[0].items():
+    for key in keys:
+        holders = [(s[key], w) for s, w in zip(states, weights) if key in s]
+        first, total = holders[0][0], sum(w for _, w in holders)
         if first.is_floating_point():
-            mixed = sum(s[key].double() * (w / total) for s, w in zip(states, weights))
+            mixed = sum(tensor.double() * (w / total) for tensor, w in holders)
             out[key] = mixed.to(first.dtype).contiguous()
         else:
-            if any(not torch.equal(s[key], first) for s in states):
+            if any(not torch.equal(tensor, first) for tensor, _ in holders):
                 raise UserError(f"tensor {key} is not floating point and differs between checkpoints")
             out[key] = first
-    return out, configs[0]
+    return out, config
 
 
 def main() -> None:

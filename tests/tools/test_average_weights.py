@@ -42,3 +42,36 @@ def test_the_average_is_weighted_and_loads(tmp_path):
         average_weights.average([a, other], [0.5, 0.5])
     with pytest.raises(UserError, match="positive"):
         average_weights.average([a, b], [1.0, 0.0])
+
+
+def test_a_model_that_added_the_pose_head_averages_with_its_start(tmp_path):
+    """The trainer may add the relative-pose head to a headless start (init_from): the average of the two has
+    the head, taken whole from the checkpoint that has it, and every shared tensor weighted."""
+    torch.manual_seed(0)
+    start = D4RT(D4RTConfig.preset("tiny")).save_pretrained(tmp_path / "start")
+    headed_config = D4RTConfig.preset("tiny", relative_pose_head=True, pose_pairs="adjacent")
+    torch.manual_seed(1)
+    tuned = D4RT(headed_config).save_pretrained(tmp_path / "tuned")
+    tensors, config_text = average_weights.average([start, tuned], [3.0, 1.0])
+    first, second = D4RT.from_pretrained(start).state_dict(), D4RT.from_pretrained(tuned).state_dict()
+    head_keys = [k for k in second if k.startswith(average_weights.POSE_HEAD_PREFIX)]
+    assert head_keys and set(tensors) == set(second)
+    for key, value in tensors.items():
+        expected = second[key] if key in head_keys else 0.75 * first[key] + 0.25 * second[key]
+        torch.testing.assert_close(value, expected, rtol=1e-6, atol=1e-7)
+    out = tmp_path / "soup"
+    out.mkdir()
+    from safetensors.torch import save_file
+
+    save_file(tensors, str(out / "model.safetensors"))
+    (out / "config.json").write_text(config_text)
+    soup = D4RT.from_pretrained(out)  # strict load
+    assert soup.config == headed_config
+
+    torch.manual_seed(2)
+    other_pairs = D4RT(headed_config.replace(pose_pairs="first")).save_pretrained(tmp_path / "other")
+    with pytest.raises(UserError, match="different pose_pairs"):
+        average_weights.average([start, tuned, other_pairs], [1.0, 1.0, 1.0])
+    deeper = D4RT(D4RTConfig.preset("tiny", decoder_depth=2, relative_pose_head=True)).save_pretrained(tmp_path / "d")
+    with pytest.raises(UserError, match="different configs"):
+        average_weights.average([start, deeper], [0.5, 0.5])
