@@ -73,6 +73,29 @@ def test_sampler_statistics_match_the_paper(room_clip):
         assert np.abs(counts - 1 / t).max() < 0.012
 
 
+def test_object_fraction_draws_body_pixels_and_leaves_the_paper_stream_alone(room_clip):
+    """object_fraction: that share of the queries (exactly, as a count, disjoint from the boundary draws) lies
+    on foreground bodies, inside a view's crop too; at 0 the sampler draws exactly the paper's queries."""
+    paper = QuerySampler(QuerySamplerConfig(num_queries=4000)).sample(room_clip, np.random.default_rng(3))
+    off = QuerySampler(QuerySamplerConfig(num_queries=4000, object_fraction=0.0)).sample(room_clip,
+                                                                                       np.random.default_rng(3))
+    assert np.array_equal(paper["queries"], off["queries"]) and not off["from_object"].any()
+    view = View((48, 64), (8, 4, 48, 40), (40, 48), (1, 2, 4, 5))
+    out = QuerySampler(QuerySamplerConfig(num_queries=4000, object_fraction=0.25)).sample(
+        room_clip, np.random.default_rng(3), view)
+    assert out["from_object"].sum() == 1000 and not (out["from_object"] & out["from_boundary"]).any()
+    source = out["source_queries"]
+    col = np.floor(source[:, 0] * room_clip.width).astype(int)
+    row = np.floor(source[:, 1] * room_clip.height).astype(int)
+    on_body = room_clip.object_ids[source[:, 2].astype(int), row, col] > 0
+    assert on_body[out["from_object"]].all()
+    assert ((col >= 8) & (col < 56) & (row >= 4) & (row < 44)).all()  # inside the crop
+    uniform = ~out["from_object"] & ~out["from_boundary"]
+    assert on_body[out["from_object"]].mean() > on_body[uniform].mean() + 0.3  # bodies are a minority of pixels
+    with pytest.raises(UserError, match="object_fraction"):
+        QuerySampler(QuerySamplerConfig(object_fraction=1.5))
+
+
 def test_training_sample_targets_are_exact_through_crop_zoom_and_stride(room_clip):
     rng = np.random.default_rng(1)
     sampler = QuerySampler(QuerySamplerConfig(num_queries=500))

@@ -5,7 +5,9 @@ Per clip, ``num_queries`` queries (u, v, t_src, t_tgt, t_cam):
   (not in paper, both off by default) a ``depth_fraction`` of depth queries and an
   ``adjacent_camera_fraction`` of camera-pair queries (t_tgt = t_src, t_cam a neighbouring frame);
 - a ``boundary_fraction`` (30%) of the (u, v) drawn from pixels within ``boundary_radius`` pixels of a
-  depth or motion boundary (Sobel filter on log-depth and on the scene flow), the rest uniform.
+  depth or motion boundary (Sobel filter on log-depth and on the scene flow), the rest uniform;
+  (not in paper, off by default) an ``object_fraction`` of the others drawn from the pixels of foreground
+  bodies (``object_ids`` > 0), the rest uniform.
 Pixels are drawn on the source clip's pixel grid (inside a view's crop when one is given) and then
 expressed in the view's coordinates, so every query stays exactly answerable by the oracle; with an
 analytic oracle the position is jittered uniformly inside its pixel (``subpixel``).
@@ -40,6 +42,11 @@ class QuerySamplerConfig:
     # above (it overrides them); 0 is the paper's sampler. Why: Reconstruction's pose_pairs="adjacent" asks
     # exactly these, and the uniform draws give them only ~2/T of the time.
     adjacent_camera_fraction: float = 0.0
+    # Share of queries whose (u, v) is drawn from foreground-body pixels (object_ids > 0), among those not drawn
+    # from a boundary; 0 is the paper's sampler. Why: uniform draws land mostly on the environment (sky, ground,
+    # walls), while a depth map's worst errors are on the bodies in front of it (stage 22's notes: a large
+    # object close to the camera, seen against the sky, predicted as far as the sky).
+    object_fraction: float = 0.0
     boundary_radius: int = 2  # "within a few pixels" (not in paper): pixels
     depth_edge_threshold: float = 0.05  # Sobel of log-depth per pixel (about a 10% depth step)
     motion_edge_threshold: float = 0.01  # Sobel of scene flow / depth per pixel
@@ -48,7 +55,8 @@ class QuerySamplerConfig:
     def validate(self) -> None:
         if self.num_queries < 1:
             raise UserError(f"num_queries must be >= 1, got {self.num_queries}")
-        for name in ("boundary_fraction", "tgt_equals_cam_prob", "depth_fraction", "adjacent_camera_fraction"):
+        for name in ("boundary_fraction", "tgt_equals_cam_prob", "depth_fraction", "adjacent_camera_fraction",
+                     "object_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise UserError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         if self.boundary_radius < 0:
@@ -134,7 +142,7 @@ class QuerySampler:
 
         Returns ``queries (N, 5)`` float64 in the view's coordinates and frame indices,
         ``source_queries (N, 5)`` the same queries in the clip's own coordinates, and the per-query flags
-        ``from_boundary (N,)`` and ``forced_tgt_equals_cam (N,)`` (bool numpy arrays).
+        ``from_boundary (N,)``, ``from_object (N,)`` and ``forced_tgt_equals_cam (N,)`` (bool numpy arrays).
         """
         cfg = self.config
         view = view or View.full(clip.num_frames, clip.height, clip.width)
@@ -174,6 +182,19 @@ class QuerySampler:
                 continue
             j = rng.integers(0, ys.size, pick.size)
             rows[pick], cols[pick] = ys[j] + y0, xs[j] + x0
+        from_object = np.zeros(n, dtype=bool)
+        if cfg.object_fraction > 0:  # drawn only when asked for: the paper's stream stays as it was
+            others = np.nonzero(~from_boundary)[0]
+            from_object[rng.permutation(others)[:int(round(cfg.object_fraction * n))]] = True
+            bodies = clip.object_ids[frames, y0:y0 + h, x0:x0 + w] > 0  # (T_view, h, w)
+            for f in np.unique(t_src[from_object]):
+                pick = np.nonzero(from_object & (t_src == f))[0]
+                ys, xs = np.nonzero(bodies[f])
+                if ys.size == 0:  # no body in this frame of the crop: these queries stay uniform
+                    from_object[pick] = False
+                    continue
+                j = rng.integers(0, ys.size, pick.size)
+                rows[pick], cols[pick] = ys[j] + y0, xs[j] + x0
 
         jitter = cfg.subpixel and isinstance(clip.oracle, AnalyticOracle)
         ox = rng.uniform(-0.5, 0.5, n) if jitter else np.zeros(n)
@@ -186,4 +207,4 @@ class QuerySampler:
         # The clip above only absorbs float rounding: pixels are drawn inside the crop.
         assert np.abs(queries[:, :2] - uv_view).max() < 1e-9
         return {"queries": queries, "source_queries": source, "from_boundary": from_boundary,
-                "forced_tgt_equals_cam": forced}
+                "from_object": from_object, "forced_tgt_equals_cam": forced}
