@@ -14,7 +14,8 @@ Sources (docs/model-card/, each written by the command named in MODEL_CARD.md):
   model, so it is not re-run with every model);
 - ``focal.json`` (tools/measure_focal.py): focal-length errors, which ``d4rt eval`` does not score;
 - ``shipped-weights.json`` (optional; written by hand): either ``{"stages", "weights", "command"}``, the shipped
-  weights are an average of stages' weights (tools/average_weights.py), or ``{"stage", "step", "rule"}``, they
+  weights are an average of stages' weights (tools/average_weights.py; an optional ``"steps"`` maps a stage
+  whose kept checkpoint went in, not its final weights, to that step), or ``{"stage", "step", "rule"}``, they
   are a kept checkpoint of the last stage (with ``"average": "ema"``, its moving average of the weights at that
   step), chosen by the rule in the named config; without it they are the last stage's final weights.
 
@@ -98,7 +99,9 @@ def training_section(stages: dict[int, dict], shipped: dict | None = None) -> st
                                      f"the whole stage), chosen by the rule written in `{shipped['rule']}` before "
                                      "it ran"]]
     elif shipped is not None:
-        parts = " + ".join(f"{w:g} x stage {s}" for s, w in zip(shipped["stages"], shipped["weights"]))
+        steps = {int(stage): step for stage, step in shipped.get("steps", {}).items()}
+        parts = " + ".join(f"{w:g} x stage {s}" + (f" (its step {steps[s]:,})" if s in steps else "")
+                           for s, w in zip(shipped["stages"], shipped["weights"]))
         rows += [["shipped weights", f"the average {parts} (`{shipped['command']}`): no further training"]]
     else:
         rows += [["shipped weights", f"stage {numbers[-1]}'s final weights"]]
