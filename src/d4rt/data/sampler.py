@@ -130,6 +130,21 @@ def boundary_mask(clip: Clip, config: QuerySamplerConfig | None = None, frames=N
     return edges[:, y0 - gy0:y0 - gy0 + h, x0 - gx0:x0 - gx0 + w]
 
 
+def _draw_inside(rng: np.random.Generator, mask: np.ndarray, flagged: np.ndarray, t_src: np.ndarray,
+                 rows: np.ndarray, cols: np.ndarray, origin: tuple[int, int]) -> None:
+    """Redraw, in place, the pixel of every ``flagged`` query uniformly from ``mask[t_src]`` ((T_view, h, w),
+    the crop at ``origin`` = (x0, y0)); a frame whose mask is empty keeps its uniform draws and unflags them."""
+    x0, y0 = origin
+    for f in np.unique(t_src[flagged]):
+        pick = np.nonzero(flagged & (t_src == f))[0]
+        ys, xs = np.nonzero(mask[f])
+        if ys.size == 0:
+            flagged[pick] = False
+            continue
+        j = rng.integers(0, ys.size, pick.size)
+        rows[pick], cols[pick] = ys[j] + y0, xs[j] + x0
+
+
 class QuerySampler:
     """Draws training queries for a clip (or a view of it) following the paper's recipe."""
 
@@ -174,27 +189,13 @@ class QuerySampler:
         from_boundary[rng.permutation(n)[:n_boundary]] = True
         cols = rng.integers(0, w, n) + x0
         rows = rng.integers(0, h, n) + y0
-        for f in np.unique(t_src[from_boundary]):
-            pick = np.nonzero(from_boundary & (t_src == f))[0]
-            ys, xs = np.nonzero(band[f])
-            if ys.size == 0:  # no boundary in this frame of the crop: these queries stay uniform
-                from_boundary[pick] = False
-                continue
-            j = rng.integers(0, ys.size, pick.size)
-            rows[pick], cols[pick] = ys[j] + y0, xs[j] + x0
+        _draw_inside(rng, band, from_boundary, t_src, rows, cols, (x0, y0))
         from_object = np.zeros(n, dtype=bool)
         if cfg.object_fraction > 0:  # drawn only when asked for: the paper's stream stays as it was
             others = np.nonzero(~from_boundary)[0]
             from_object[rng.permutation(others)[:int(round(cfg.object_fraction * n))]] = True
             bodies = clip.object_ids[frames, y0:y0 + h, x0:x0 + w] > 0  # (T_view, h, w)
-            for f in np.unique(t_src[from_object]):
-                pick = np.nonzero(from_object & (t_src == f))[0]
-                ys, xs = np.nonzero(bodies[f])
-                if ys.size == 0:  # no body in this frame of the crop: these queries stay uniform
-                    from_object[pick] = False
-                    continue
-                j = rng.integers(0, ys.size, pick.size)
-                rows[pick], cols[pick] = ys[j] + y0, xs[j] + x0
+            _draw_inside(rng, bodies, from_object, t_src, rows, cols, (x0, y0))
 
         jitter = cfg.subpixel and isinstance(clip.oracle, AnalyticOracle)
         ox = rng.uniform(-0.5, 0.5, n) if jitter else np.zeros(n)
