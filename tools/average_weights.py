@@ -16,45 +16,43 @@ and prints what it averaged.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import save_file
 
 from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
-from d4rt.model.weights import CONFIG_NAME, WEIGHTS_NAME
+from d4rt.model.weights import CONFIG_NAME, WEIGHTS_NAME, read_checkpoint
 
 # The tensors of the one part a checkpoint may lack (see the module docstring).
 POSE_HEAD_PREFIX = "decoder.heads.relative_pose."
 
 
-def _shared_config(texts: list[str]) -> str:
-    """The averaged model's config.json text: the checkpoints' common config, or, when some add the
-    relative-pose head, the config of the first that has it."""
-    if all(json.loads(t) == json.loads(texts[0]) for t in texts):
-        return texts[0]
-    configs = [D4RTConfig.from_dict(json.loads(t)) for t in texts]
+def _shared_config(configs: list[D4RTConfig]) -> D4RTConfig:
+    """The averaged model's config: the checkpoints' common config, or, when some add the relative-pose head,
+    the config of the first that has it."""
+    if all(c == configs[0] for c in configs):
+        return configs[0]
     headed = [c for c in configs if c.relative_pose_head]
-    if any(c.replace(relative_pose_head=False, pose_pairs="first") != configs[0].replace(
-            relative_pose_head=False, pose_pairs="first") for c in configs) or not headed:
+    headless = [c.replace(relative_pose_head=False, pose_pairs="first") for c in configs]
+    if not headed or any(c != headless[0] for c in headless):
         raise UserError("the checkpoints have different configs: only one architecture can be averaged")
     if any(c.pose_pairs != headed[0].pose_pairs for c in headed):
         raise UserError("the checkpoints with a relative-pose head name different pose_pairs: set one in their "
                         "config.json files")
-    return texts[configs.index(headed[0])]
+    return headed[0]
 
 
 def average(directories: list[Path], weights: list[float]) -> tuple[dict[str, torch.Tensor], str]:
-    """(averaged tensors, the shared config.json text); float tensors averaged in float64 and stored in
-    their own dtype, others (none in D4RT today) required equal."""
+    """(averaged tensors, the averaged model's config.json text); float tensors averaged in float64 and stored
+    in their own dtype, others (none in D4RT today) required equal."""
     if len(directories) != len(weights) or len(directories) < 2:
         raise UserError("give at least two checkpoints and one weight per checkpoint")
     if any(w <= 0 for w in weights):
         raise UserError(f"weights must be positive, got {weights}")
-    config = _shared_config([(d / CONFIG_NAME).read_text() for d in directories])
-    states = [load_file(str(d / WEIGHTS_NAME)) for d in directories]
+    configs, states = zip(*(read_checkpoint(d) for d in directories))
+    config = _shared_config(list(configs))
     keys = sorted(set().union(*(s.keys() for s in states)))
     if any(not key.startswith(POSE_HEAD_PREFIX) for s in states for key in set(keys) - s.keys()):
         raise UserError("the checkpoints hold different tensors")
@@ -69,7 +67,7 @@ def average(directories: list[Path], weights: list[float]) -> tuple[dict[str, to
             if any(not torch.equal(tensor, first) for tensor, _ in holders):
                 raise UserError(f"tensor {key} is not floating point and differs between checkpoints")
             out[key] = first
-    return out, config
+    return out, config.to_json()
 
 
 def main() -> None:
@@ -78,7 +76,10 @@ def main() -> None:
     parser.add_argument("--weights", nargs="+", type=float, required=True, help="one per checkpoint")
     parser.add_argument("--out", type=Path, required=True, help="directory to write")
     args = parser.parse_args()
-    tensors, config = average(args.checkpoints, args.weights)
+    try:
+        tensors, config = average(args.checkpoints, args.weights)
+    except UserError as error:
+        parser.error(str(error))
     args.out.mkdir(parents=True, exist_ok=True)
     save_file(tensors, str(args.out / WEIGHTS_NAME), metadata={"format": "pt"})
     (args.out / CONFIG_NAME).write_text(config)
