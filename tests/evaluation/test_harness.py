@@ -102,6 +102,8 @@ def test_cli_eval_with_a_checkpoint(tmp_path, tiny_checkpoint, capsys):
     assert list(methods) == ["d4rt", "oracle", "constant-depth"]
     d4rt = methods["d4rt"]
     assert [s["name"] for s in d4rt["sequences"]] == ["clip_0", "clip_1"]
+    # Each row carries its weight in the pooled depth figures: every pixel of these clips has a true depth.
+    assert [s["valid_pixels"] for s in d4rt["sequences"]] == [4 * 24 * 32] * 2
     # Random weights: numbers are finite and imperfect; the oracle beside them is perfect.
     for key in ("abs_rel[scale&shift]", "ate", "apd3d", "world_l1", "pc_l1"):
         assert np.isfinite(d4rt["aggregate"][key]), key

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from d4rt import __version__
 from d4rt.evaluation.benchmarks import Benchmark
-from d4rt.evaluation.harness import MethodResults, metric_columns
+from d4rt.evaluation.harness import MethodResults, SequenceResult, metric_columns
 
 
 def format_value(value: float | None) -> str:
@@ -49,9 +49,16 @@ def to_json(benchmark: Benchmark, results: list[MethodResults]) -> dict:
         "benchmark": settings,
         "columns": metric_columns(benchmark),
         "methods": [{"name": r.method, "aggregate": r.aggregate,
-                     "sequences": [{"name": row.name, "metrics": row.metrics, "notes": row.notes} for row in r.rows]}
+                     "sequences": [_sequence_json(row) for row in r.rows]}
                     for r in results],
     }
+
+
+def _sequence_json(row: SequenceResult) -> dict:
+    out = {"name": row.name, "metrics": row.metrics, "notes": row.notes}
+    if row.depth:  # the sequence's weight in the pooled depth figures (tools/compare_evals.py re-pools with it)
+        out["valid_pixels"] = next(iter(row.depth.values())).valid_pixels
+    return out
 
 
 def write_json(path: Path, benchmark: Benchmark, results: list[MethodResults]) -> Path:
