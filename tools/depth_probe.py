@@ -12,7 +12,8 @@ per-sequence scale and scale&shift alignment, aggregated over all pixels as the 
 
 The clips are the definitions i = 6b + s for each field-of-view band b (0-7) and two sizes s per band:
 first s = 2b mod 6 for every band, then s = (2b + 3) mod 6, so any 8 first clips cover every band and all 16
-every size; ``--clips N`` keeps the first N. A clip costs about 15-25 s per checkpoint on one CPU thread.
+every size; ``--clips N`` keeps the first N (default 16; up to 48, the other clip definitions in order, as many
+clips as the benchmark has). A clip costs about 15-25 s per checkpoint on one CPU thread.
 Also reported: the median over clips of each clip's AbsRel. Why: the alignment minimises the L1 error of depth
 itself, so in an outdoor clip whose model depth range is too narrow the far pixels (tens of metres) decide the
 scale and every near pixel's relative error can reach 10x or more (the shipped weights on held-out clip 34:
@@ -42,16 +43,19 @@ from d4rt.evaluation.predictions import d4rt_predictor
 from d4rt.evaluation.synthetic_benchmark import NUM_CLIPS, SIZES, clip_specs
 
 HELD_OUT_SEED = 9_000_000
+DEFAULT_CLIPS = 16  # the probe every stage since 20 reports
 # True depths (scene units, metres in the synthetic engine) that split far from near for the far/near ratio.
 FAR_DEPTH, NEAR_DEPTH = 30.0, 10.0
 PROBE = Benchmark("depth-probe", "held-out clips drawn like synthetic-dynamic-v1", None, ("depth",))
 
 
 def probe_indices() -> list[int]:
-    """16 clip definitions: one per field-of-view band, then a second size per band (every size as often)."""
+    """All 48 clip definitions, ordered so that any first N are balanced: one per field-of-view band, then a
+    second size per band (the first 16 hold every size as often), then the other 32 in order."""
     sizes, bands = len(SIZES), range(NUM_CLIPS // len(SIZES))
-    return ([sizes * band + 2 * band % sizes for band in bands]
-            + [sizes * band + (2 * band + 3) % sizes for band in bands])
+    first = ([sizes * band + 2 * band % sizes for band in bands]
+             + [sizes * band + (2 * band + 3) % sizes for band in bands])
+    return first + [i for i in range(NUM_CLIPS) if i not in first]
 
 
 def render_probe_clips(count: int) -> list:
@@ -99,8 +103,9 @@ def main() -> None:
     parser.add_argument("checkpoints", nargs="+")
     parser.add_argument("--out", required=True)
     available = len(probe_indices())
-    parser.add_argument("--clips", type=int, default=available,
-                        help=f"how many of the {available} held-out clips (default {available})")
+    parser.add_argument("--clips", type=int, default=DEFAULT_CLIPS,
+                        help=f"how many of the {available} held-out clips (default {DEFAULT_CLIPS}; {available}: "
+                             "as many as the benchmark, about 16 min per checkpoint)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     args = parser.parse_args()
     if not 1 <= args.clips <= available:

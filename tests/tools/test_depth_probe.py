@@ -48,3 +48,12 @@ def test_probe_scores_exact_depth_as_exact_and_a_squeezed_sky_as_such():
         SimpleNamespace(predict=lambda seq, tasks: Prediction(depth=np.where(seq.depth > 30, 10.0, seq.depth))),
         [sequence])
     assert squeezed["far_near_log_error"] == pytest.approx(np.log(5.0), abs=1e-3)
+
+
+def test_the_clip_order_is_balanced_first_and_covers_the_benchmark_design():
+    order = depth_probe.probe_indices()
+    assert sorted(order) == list(range(48))  # every definition once: 48 clips as many as the benchmark's
+    first = order[:16]
+    assert sorted(i // 6 for i in first[:8]) == list(range(8))  # any 8 first: every field-of-view band
+    sizes = np.bincount([i % 6 for i in first], minlength=6)
+    assert sizes.min() >= 2 and sizes.max() - sizes.min() <= 1  # the first 16: every size, about as often
