@@ -12,7 +12,8 @@ interval over the draws, the share of draws in which NEW is better, and on how m
 says how much the benchmark's own sequences could move a difference, not how the models would compare on other
 scenes (that needs held-out clips). Pose AUC and the registered fraction pool frames, not sequences, and are refused.
 
-JSON written before ``valid_pixels`` was recorded per sequence has no depth weights: ``--unweighted`` then
+It also reads ``tools/depth_probe.py`` JSON (held-out clips; ``--methods`` names a checkpoint of each). JSON
+written before ``valid_pixels`` was recorded per sequence (or per probe clip) has no depth weights: ``--unweighted`` then
 averages the sequences equally (said in the output), which is not the benchmark's pooling.
 """
 
@@ -64,7 +65,13 @@ def paired_bootstrap(base: np.ndarray, new: np.ndarray, weights: np.ndarray, sam
 
 
 def method_rows(results: dict, method: str, path: str) -> dict[str, dict]:
-    """Sequence name -> row of one method of a ``d4rt eval`` JSON."""
+    """Sequence name -> row (``metrics``, ``valid_pixels``) of one method of a ``d4rt eval`` JSON, or of one
+    checkpoint of a ``tools/depth_probe.py`` JSON (its ``models``, named by checkpoint path)."""
+    if "models" in results:  # a depth probe: one row per held-out clip, its metrics inline
+        if method not in results["models"]:
+            raise UserError(f"{path}: no checkpoint {method!r} (it has {list(results['models'])})")
+        return {row["clip"]: {"metrics": row, **({"valid_pixels": row["valid_pixels"]} if "valid_pixels" in row else {})}
+                for row in results["models"][method]["clips"]}
     for entry in results.get("methods", []):
         if entry["name"] == method:
             return {row["name"]: row for row in entry["sequences"]}
@@ -72,12 +79,14 @@ def method_rows(results: dict, method: str, path: str) -> dict[str, dict]:
     raise UserError(f"{path}: no method {method!r} (it has {names})")
 
 
-def compare(base: dict, new: dict, metric: str, method: str = "d4rt", samples: int = 10000,
+def compare(base: dict, new: dict, metric: str, method: str | tuple[str, str] = "d4rt", samples: int = 10000,
             unweighted: bool = False, names: tuple[str, str] = ("BASE", "NEW")) -> dict:
-    """Paired bootstrap of ``metric`` between two ``d4rt eval`` JSONs (see the module docstring)."""
+    """Paired bootstrap of ``metric`` between two results (see the module docstring); ``method`` names the
+    method (or depth-probe checkpoint) of both, or a (base, new) pair."""
     if metric.startswith(NOT_PER_SEQUENCE):
         raise UserError(f"{metric} pools frames, not sequences: it cannot be resampled by sequence")
-    rows_a, rows_b = method_rows(base, method, names[0]), method_rows(new, method, names[1])
+    methods = (method, method) if isinstance(method, str) else tuple(method)
+    rows_a, rows_b = method_rows(base, methods[0], names[0]), method_rows(new, methods[1], names[1])
     if rows_a.keys() != rows_b.keys():
         raise UserError(f"{names[0]} and {names[1]} score different sequences: "
                         f"{sorted(rows_a.keys() ^ rows_b.keys())[:5]}")
@@ -95,7 +104,7 @@ def compare(base: dict, new: dict, metric: str, method: str = "d4rt", samples: i
     weights = [rows_a[name]["valid_pixels"] if pooled else 1.0 for name in scored]
     out = paired_bootstrap([rows_a[n]["metrics"][metric] for n in scored], [rows_b[n]["metrics"][metric] for n in scored],
                            weights, samples, lower_is_better=metric.startswith(LOWER_IS_BETTER))
-    out.update(metric=metric, method=method, weighting="valid pixels" if pooled else "equal",
+    out.update(metric=metric, method=" vs ".join(dict.fromkeys(methods)), weighting="valid pixels" if pooled else "equal",
                left_out=len(rows_a) - len(scored))
     return out
 
@@ -105,7 +114,9 @@ def main() -> None:
     parser.add_argument("base", type=Path, help="d4rt eval --out JSON of the reference (e.g. the shipped model)")
     parser.add_argument("new", type=Path, help="d4rt eval --out JSON of the candidate")
     parser.add_argument("--metric", default="abs_rel[scale&shift]")
-    parser.add_argument("--method", default="d4rt")
+    parser.add_argument("--method", default="d4rt", help="method of both results (a checkpoint for a depth probe)")
+    parser.add_argument("--methods", nargs=2, metavar=("BASE_METHOD", "NEW_METHOD"),
+                        help="a method each, e.g. two checkpoints of one depth-probe JSON given twice")
     parser.add_argument("--samples", type=int, default=10000)
     parser.add_argument("--unweighted", action="store_true", help="average sequences equally (older JSON)")
     args = parser.parse_args()
@@ -116,7 +127,8 @@ def main() -> None:
                 loaded.append(json.loads(path.read_text()))
             except (OSError, ValueError) as error:
                 raise UserError(f"cannot read {path}: {error}") from None
-        r = compare(*loaded, args.metric, args.method, args.samples, args.unweighted, (str(args.base), str(args.new)))
+        r = compare(*loaded, args.metric, tuple(args.methods or (args.method,) * 2), args.samples, args.unweighted,
+                    (str(args.base), str(args.new)))
     except UserError as error:
         parser.error(str(error))
     print(f"{r['metric']} ({r['method']}, {r['sequences']} sequences, weighted by {r['weighting']}"

@@ -91,7 +91,8 @@ def probe(predictor, sequences: list) -> dict:
     summary["far_near_log_error"] = round(float(np.median(log_errors)), 4) if log_errors else None
     clips = []
     for r in rows:
-        clip = {"clip": r.name, **{k: round(v, 4) for k, v in r.metrics.items() if v is not None}}
+        clip = {"clip": r.name, **{k: round(v, 4) for k, v in r.metrics.items() if v is not None},
+                "valid_pixels": next(iter(r.depth.values())).valid_pixels}  # its weight in the pooled figures
         if ratios[r.name] is not None:
             clip["far_near_ratio"] = {"predicted": round(ratios[r.name][0], 3), "true": round(ratios[r.name][1], 3)}
         clips.append(clip)

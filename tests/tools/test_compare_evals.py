@@ -77,3 +77,14 @@ def test_what_cannot_be_compared_is_refused_in_one_line():
         compare_evals.compare(results(base, pixels), results(base, pixels), "ate", method="pycolmap")
     with pytest.raises(UserError, match="different valid pixels"):
         compare_evals.compare(results(base, pixels), results(base, {"a": 10, "b": 11}), "abs_rel[scale&shift]")
+
+
+def test_two_checkpoints_of_one_depth_probe_compare_clip_by_clip():
+    clips = [{"clip": "clip_00", "abs_rel[scale&shift]": 0.5, "valid_pixels": 300},
+             {"clip": "clip_08", "abs_rel[scale&shift]": 1.5, "valid_pixels": 100}]
+    better = [dict(row, **{"abs_rel[scale&shift]": row["abs_rel[scale&shift]"] - 0.1}) for row in clips]
+    probe = {"held_out_seed": 9_000_000, "models": {"old": {"clips": clips}, "new": {"clips": better}}}
+    r = compare_evals.compare(probe, probe, "abs_rel[scale&shift]", ("old", "new"), samples=200)
+    assert r["difference"] == pytest.approx(-0.1) and r["new_better_on"] == 2 and r["method"] == "old vs new"
+    with pytest.raises(UserError, match="no checkpoint 'other'"):
+        compare_evals.compare(probe, probe, "abs_rel[scale&shift]", ("old", "other"))

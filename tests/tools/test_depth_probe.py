@@ -44,6 +44,7 @@ def test_probe_scores_exact_depth_as_exact_and_a_squeezed_sky_as_such():
     assert exact["abs_rel[scale&shift]"] == pytest.approx(0.0, abs=1e-4)
     assert exact["far_near_log_error"] == pytest.approx(0.0, abs=1e-6)
     assert exact["clips"][0]["far_near_ratio"] == {"predicted": 16.667, "true": 16.667}
+    assert exact["clips"][0]["valid_pixels"] == true.size  # its weight in the pooled figures (every depth valid)
     squeezed = depth_probe.probe(
         SimpleNamespace(predict=lambda seq, tasks: Prediction(depth=np.where(seq.depth > 30, 10.0, seq.depth))),
         [sequence])
