@@ -15,7 +15,8 @@ Sources (docs/model-card/, each written by the command named in MODEL_CARD.md):
 - ``focal.json`` (tools/measure_focal.py): focal-length errors, which ``d4rt eval`` does not score;
 - ``shipped-weights.json`` (optional; written by hand): either ``{"stages", "weights", "command"}``, the shipped
   weights are an average of stages' weights (tools/average_weights.py; an optional ``"steps"`` maps a stage
-  whose kept checkpoint went in, not its final weights, to that step), or ``{"stage", "step", "rule"}``, they
+  whose kept checkpoint went in, not its final weights, to that step; an entry of ``"stages"`` may itself be
+  such a ``{"stages", "weights"[, "steps"]}``, an average that went into the average), or ``{"stage", "step", "rule"}``, they
   are a kept checkpoint of the last stage (with ``"average": "ema"``, its moving average of the weights at that
   step), chosen by the rule in the named config; without it they are the last stage's final weights.
 
@@ -99,13 +100,20 @@ def training_section(stages: dict[int, dict], shipped: dict | None = None) -> st
                                      f"the whole stage), chosen by the rule written in `{shipped['rule']}` before "
                                      "it ran"]]
     elif shipped is not None:
-        steps = {int(stage): step for stage, step in shipped.get("steps", {}).items()}
-        parts = " + ".join(f"{w:g} x stage {s}" + (f" (its step {steps[s]:,})" if s in steps else "")
-                           for s, w in zip(shipped["stages"], shipped["weights"]))
-        rows += [["shipped weights", f"the average {parts} (`{shipped['command']}`): no further training"]]
+        rows += [["shipped weights", f"the average {average_text(shipped)} (`{shipped['command']}`): no further "
+                                     "training"]]
     else:
         rows += [["shipped weights", f"stage {numbers[-1]}'s final weights"]]
     return table(["", ""], rows)
+
+
+def average_text(average: dict) -> str:
+    """``0.5 x stage 2 + 0.5 x stage 4`` for ``{"stages", "weights"[, "steps"]}``; an entry of ``stages`` may
+    itself be such an average (an average of averages, shown in brackets)."""
+    steps = {int(stage): step for stage, step in average.get("steps", {}).items()}
+    return " + ".join(f"{w:g} x " + (f"({average_text(s)})" if isinstance(s, dict) else
+                                     f"stage {s}" + (f" (its step {steps[s]:,})" if s in steps else ""))
+                      for s, w in zip(average["stages"], average["weights"]))
 
 
 def stage_summary(training: dict, previous: int | None) -> str:
