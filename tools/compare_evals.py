@@ -13,8 +13,8 @@ says how much the benchmark's own sequences could move a difference, not how the
 scenes (that needs held-out clips). Pose AUC and the registered fraction pool frames, not sequences, and are refused.
 
 It also reads ``tools/depth_probe.py`` JSON (held-out clips; ``--methods`` names a checkpoint of each). JSON
-written before ``valid_pixels`` was recorded per sequence (or per probe clip) has no depth weights: ``--unweighted`` then
-averages the sequences equally (said in the output), which is not the benchmark's pooling.
+written before ``valid_pixels`` was recorded per sequence (or per probe clip) has no depth weights:
+``--unweighted`` then averages the sequences equally (said in the output), which is not the benchmark's pooling.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def method_rows(results: dict, method: str, path: str) -> dict[str, dict]:
     if "models" in results:  # a depth probe: one row per held-out clip, its metrics inline
         if method not in results["models"]:
             raise UserError(f"{path}: no checkpoint {method!r} (it has {list(results['models'])})")
-        return {row["clip"]: {"metrics": row, **({"valid_pixels": row["valid_pixels"]} if "valid_pixels" in row else {})}
+        return {row["clip"]: {"metrics": row, **{k: row[k] for k in ("valid_pixels",) if k in row}}
                 for row in results["models"][method]["clips"]}
     for entry in results.get("methods", []):
         if entry["name"] == method:
@@ -102,17 +102,17 @@ def compare(base: dict, new: dict, metric: str, method: str | tuple[str, str] = 
         if any(rows_a[name]["valid_pixels"] != rows_b[name]["valid_pixels"] for name in scored):
             raise UserError("the two results count different valid pixels: they are not on the same ground truth")
     weights = [rows_a[name]["valid_pixels"] if pooled else 1.0 for name in scored]
-    out = paired_bootstrap([rows_a[n]["metrics"][metric] for n in scored], [rows_b[n]["metrics"][metric] for n in scored],
-                           weights, samples, lower_is_better=metric.startswith(LOWER_IS_BETTER))
-    out.update(metric=metric, method=" vs ".join(dict.fromkeys(methods)), weighting="valid pixels" if pooled else "equal",
-               left_out=len(rows_a) - len(scored))
+    values = [[rows[name]["metrics"][metric] for name in scored] for rows in (rows_a, rows_b)]
+    out = paired_bootstrap(*values, weights, samples, lower_is_better=metric.startswith(LOWER_IS_BETTER))
+    out.update(metric=metric, method=" vs ".join(dict.fromkeys(methods)),
+               weighting="valid pixels" if pooled else "equal", left_out=len(rows_a) - len(scored))
     return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("base", type=Path, help="d4rt eval --out JSON of the reference (e.g. the shipped model)")
-    parser.add_argument("new", type=Path, help="d4rt eval --out JSON of the candidate")
+    parser.add_argument("base", type=Path, help="d4rt eval (or depth-probe) JSON of the reference")
+    parser.add_argument("new", type=Path, help="d4rt eval (or depth-probe) JSON of the candidate")
     parser.add_argument("--metric", default="abs_rel[scale&shift]")
     parser.add_argument("--method", default="d4rt", help="method of both results (a checkpoint for a depth probe)")
     parser.add_argument("--methods", nargs=2, metavar=("BASE_METHOD", "NEW_METHOD"),

@@ -92,7 +92,7 @@ def probe(predictor, sequences: list) -> dict:
     clips = []
     for r in rows:
         clip = {"clip": r.name, **{k: round(v, 4) for k, v in r.metrics.items() if v is not None},
-                "valid_pixels": next(iter(r.depth.values())).valid_pixels}  # its weight in the pooled figures
+                "valid_pixels": r.valid_pixels}  # its weight in the pooled figures
         if ratios[r.name] is not None:
             clip["far_near_ratio"] = {"predicted": round(ratios[r.name][0], 3), "true": round(ratios[r.name][1], 3)}
         clips.append(clip)

@@ -16,9 +16,10 @@ Sources (docs/model-card/, each written by the command named in MODEL_CARD.md):
 - ``shipped-weights.json`` (optional; written by hand): either ``{"stages", "weights", "command"}``, the shipped
   weights are an average of stages' weights (tools/average_weights.py; an optional ``"steps"`` maps a stage
   whose kept checkpoint went in, not its final weights, to that step; an entry of ``"stages"`` may itself be
-  such a ``{"stages", "weights"[, "steps"]}``, an average that went into the average), or ``{"stage", "step", "rule"}``, they
-  are a kept checkpoint of the last stage (with ``"average": "ema"``, its moving average of the weights at that
-  step), chosen by the rule in the named config; without it they are the last stage's final weights.
+  such a ``{"stages", "weights"[, "steps"]}``, an average that went into the average), or
+  ``{"stage", "step", "rule"}``, they are a kept checkpoint of the last stage (with ``"average": "ema"``, its
+  moving average of the weights at that step), chosen by the rule in the named config; without it they are the
+  last stage's final weights.
 
 Each generated section sits between ``<!-- BEGIN name -->`` and ``<!-- END name -->`` markers; the text
 around them is written by hand and never holds a measured number.

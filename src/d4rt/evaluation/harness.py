@@ -58,6 +58,11 @@ class SequenceResult:
     # alignment applied: whether the method's confidence tells its good pixels from its bad ones.
     confidence_errors: np.ndarray | None = None
 
+    @property
+    def valid_pixels(self) -> int | None:
+        """Pixels with a true depth: the sequence's weight in the pooled depth figures (None without depth)."""
+        return next(iter(self.depth.values())).valid_pixels if self.depth else None
+
 
 @dataclass
 class MethodResults:

@@ -56,8 +56,8 @@ def to_json(benchmark: Benchmark, results: list[MethodResults]) -> dict:
 
 def _sequence_json(row: SequenceResult) -> dict:
     out = {"name": row.name, "metrics": row.metrics, "notes": row.notes}
-    if row.depth:  # the sequence's weight in the pooled depth figures (tools/compare_evals.py re-pools with it)
-        out["valid_pixels"] = next(iter(row.depth.values())).valid_pixels
+    if row.valid_pixels is not None:  # its weight in the pooled depth figures (tools/compare_evals.py re-pools)
+        out["valid_pixels"] = row.valid_pixels
     return out
 
 
