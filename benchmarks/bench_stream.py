@@ -28,7 +28,8 @@ def one_run(frames: int, height: int, width: int, depth_size: tuple[int, int]) -
 
     model = D4RT.from_pretrained()
     clip = render_clip(0, 24, height, width).rgb
-    stream = StreamingReconstruction(model.encode, model.config.max_frames, depth_size=depth_size)
+    stream = StreamingReconstruction(model.encode, model.config.max_frames, depth_size=depth_size,
+                                     pose_pairs=model.config.pose_pairs)
     latencies = []
     with torch.inference_mode():
         for i in range(frames):

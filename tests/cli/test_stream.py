@@ -37,8 +37,8 @@ def clip():
     return render_clip(3, 15, 36, 48, num_objects=2, camera_motion="orbit")
 
 
-def offline(model, rgb, depth_size=(9, 12)):
-    rec = Reconstruction.from_model(model, rgb, window=WINDOW, overlap=OVERLAP, progress=False)
+def offline(model, rgb, depth_size=(9, 12), pose_pairs=None):
+    rec = Reconstruction.from_model(model, rgb, window=WINDOW, overlap=OVERLAP, pose_pairs=pose_pairs, progress=False)
     return rec.cameras(), rec.depth(depth_size), rec.windows
 
 
@@ -47,12 +47,14 @@ def stream_command(out, *extra) -> list[str]:
             "--overlap", str(OVERLAP), "--dtype", "fp32", *map(str, extra)]
 
 
-@pytest.mark.parametrize("length", [15, 14, 5])  # a shifted last window, windows that tile, one short window
-def test_pushing_frames_one_at_a_time_equals_the_offline_recipe(model, clip, length):
+# A shifted last window, windows that tile, one short window; the model's own camera pairs (the shipped model
+# chains adjacent frames) and the paper's (every frame against its window's first).
+@pytest.mark.parametrize("length, pose_pairs", [(15, None), (14, None), (5, None), (15, "first")])
+def test_pushing_frames_one_at_a_time_equals_the_offline_recipe(model, clip, length, pose_pairs):
     rgb = clip.rgb[:length]
-    cams, depth, windows = offline(model, rgb)
+    cams, depth, windows = offline(model, rgb, pose_pairs=pose_pairs)
     stream = StreamingReconstruction(model.encode, model.config.max_frames, window=WINDOW, overlap=OVERLAP,
-                                     depth_size=(9, 12))
+                                     depth_size=(9, 12), pose_pairs=pose_pairs or model.config.pose_pairs)
     results = [r for frame in rgb for r in stream.push(frame)] + stream.finish()
     assert [r.window for r in results] == windows
     assert np.concatenate([r.frames for r in results]).tolist() == list(range(length))  # every frame once

@@ -14,6 +14,7 @@ import shutil
 import sys
 
 from d4rt.cli import COMMANDS, parse_size
+from d4rt.config import POSE_PAIRS
 from d4rt.errors import UserError
 
 
@@ -38,6 +39,9 @@ def register(subparsers) -> None:
                    help="frames shared by consecutive windows (default: a quarter of the window)")
     p.add_argument("--depth-resolution", default=None, metavar="WxH",
                    help="also decode depth maps of every frame at this size, or 'encoder' (default: cameras only)")
+    p.add_argument("--pose-pairs", choices=POSE_PAIRS,
+                   help="which camera each frame's pose is fitted against: the window's 'first' or the previous "
+                        "frame's, the fits chained ('adjacent'); default: the model's own (its config's pose_pairs)")
     p.add_argument("--checkpoint", metavar="DIR", default=None,
                    help="a directory written by D4RT.save_pretrained (default: the bundled model)")
     p.add_argument("--device", default="auto", help="torch device: auto (the default), cpu, cuda, cuda:1, ...")
@@ -128,7 +132,8 @@ def stream_to_folder(model, frames, out_dir, args, depth_option) -> dict:
                 elif depth_option is not None:
                     depth_size = depth_option
                 stream = StreamingReconstruction(model.encode, model.config.max_frames, window=args.window,
-                                                 overlap=args.overlap, depth_size=depth_size)
+                                                 overlap=args.overlap, depth_size=depth_size,
+                                                 pose_pairs=args.pose_pairs or model.config.pose_pairs)
             times.append(stamp if stamp is not None else len(times) / fps)
             write(stream.push(frame))
             if stop.requested:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from d4rt.config import check_pose_pairs
 from d4rt.errors import UserError
 from d4rt.geometry.camera import cell_centres_uv, pixel_grid, pixel_to_uv
 from d4rt.geometry.transforms import invert_rigid
@@ -51,18 +52,20 @@ class StreamingReconstruction:
     encode: frames (K, H, W, 3) uint8 -> an answerer of those K frames (``model.encode``); max_window: the
     longest window it takes (a model's ``config.max_frames``). window / overlap: as for
     ``Reconstruction`` (default: max_window, a quarter of it). depth_size: (h, w) of depth maps to decode
-    per frame, or None for cameras only. grid / align_fraction / chunk_size: as for ``Reconstruction``.
+    per frame, or None for cameras only. grid / align_fraction / chunk_size / pose_pairs: as for
+    ``Reconstruction`` (pass the model's ``config.pose_pairs`` to get its offline cameras).
     """
 
     def __init__(self, encode: Callable[[np.ndarray], object], max_window: int, *, window: int | None = None,
                  overlap: int | None = None, depth_size: tuple[int, int] | None = None, grid: int = DEFAULT_GRID,
-                 align_fraction: float = 0.85, chunk_size: int = 1 << 16):
+                 align_fraction: float = 0.85, chunk_size: int = 1 << 16, pose_pairs: str = "first"):
         self.encode = encode
         self.window = window or max_window
         if self.window > max_window:
             raise UserError(f"window must be at most the model's {max_window} frames, got {self.window}")
         self.overlap = window_overlap(self.window, overlap)  # as offline: the same windows
         self.depth_size, self.grid, self.align_fraction, self.chunk_size = depth_size, grid, align_fraction, chunk_size
+        self.pose_pairs = check_pose_pairs(pose_pairs)
         self.frames: list[np.ndarray] = []  # the frames from self.start on (less than one window)
         self.start = 0  # global index of self.frames[0]
         self.count = 0  # frames pushed so far
@@ -130,7 +133,7 @@ class StreamingReconstruction:
             sim = align_pair(lambda q: self._ask(previous_answerer, a, q), ask, (a, b), (start, stop), previous_sim,
                              uv, self.align_fraction)
         own = np.arange(self.answered, stop)
-        points, confidence, c2w = window_camera_grid(ask, start, own, uv, sim)
+        points, confidence, c2w = window_camera_grid(ask, start, own, uv, sim, self.pose_pairs)
         if self.world_from_first is None:
             self.world_from_first = invert_rigid(c2w[0])
         height, width = self.size
