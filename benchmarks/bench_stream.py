@@ -28,8 +28,7 @@ def one_run(frames: int, height: int, width: int, depth_size: tuple[int, int]) -
 
     model = D4RT.from_pretrained()
     clip = render_clip(0, 24, height, width).rgb
-    stream = StreamingReconstruction(model.encode, model.config.max_frames, depth_size=depth_size,
-                                     pose_pairs=model.config.pose_pairs)
+    stream = StreamingReconstruction.from_model(model, depth_size=depth_size)
     latencies = []
     with torch.inference_mode():
         for i in range(frames):

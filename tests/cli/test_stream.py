@@ -53,8 +53,8 @@ def stream_command(out, *extra) -> list[str]:
 def test_pushing_frames_one_at_a_time_equals_the_offline_recipe(model, clip, length, pose_pairs):
     rgb = clip.rgb[:length]
     cams, depth, windows = offline(model, rgb, pose_pairs=pose_pairs)
-    stream = StreamingReconstruction(model.encode, model.config.max_frames, window=WINDOW, overlap=OVERLAP,
-                                     depth_size=(9, 12), pose_pairs=pose_pairs or model.config.pose_pairs)
+    stream = StreamingReconstruction.from_model(model, window=WINDOW, overlap=OVERLAP, depth_size=(9, 12),
+                                                pose_pairs=pose_pairs)
     results = [r for frame in rgb for r in stream.push(frame)] + stream.finish()
     assert [r.window for r in results] == windows
     assert np.concatenate([r.frames for r in results]).tolist() == list(range(length))  # every frame once

@@ -131,9 +131,8 @@ def stream_to_folder(model, frames, out_dir, args, depth_option) -> dict:
                     depth_size = encoder_resolution(h, w, (size, size))
                 elif depth_option is not None:
                     depth_size = depth_option
-                stream = StreamingReconstruction(model.encode, model.config.max_frames, window=args.window,
-                                                 overlap=args.overlap, depth_size=depth_size,
-                                                 pose_pairs=args.pose_pairs or model.config.pose_pairs)
+                stream = StreamingReconstruction.from_model(model, window=args.window, overlap=args.overlap,
+                                                            depth_size=depth_size, pose_pairs=args.pose_pairs)
             times.append(stamp if stamp is not None else len(times) / fps)
             write(stream.push(frame))
             if stop.requested:

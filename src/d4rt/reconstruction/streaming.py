@@ -53,7 +53,7 @@ class StreamingReconstruction:
     longest window it takes (a model's ``config.max_frames``). window / overlap: as for
     ``Reconstruction`` (default: max_window, a quarter of it). depth_size: (h, w) of depth maps to decode
     per frame, or None for cameras only. grid / align_fraction / chunk_size / pose_pairs: as for
-    ``Reconstruction`` (pass the model's ``config.pose_pairs`` to get its offline cameras).
+    ``Reconstruction``. :meth:`from_model` takes these from a model, as ``Reconstruction.from_model`` does.
     """
 
     def __init__(self, encode: Callable[[np.ndarray], object], max_window: int, *, window: int | None = None,
@@ -76,6 +76,14 @@ class StreamingReconstruction:
         self.answered = 0  # frames handed out so far
         self.world_from_first: np.ndarray | None = None  # inverse pose of frame 0 (the world is camera 0)
         self.arrived = 0.0
+
+    @classmethod
+    def from_model(cls, model, **options) -> "StreamingReconstruction":
+        """A stream over a D4RT model (``encode`` and ``config``): its longest window, and ``pose_pairs`` (or
+        None) defaulting to the model's own (``config.pose_pairs``), so that the cameras are its offline ones."""
+        if options.get("pose_pairs") is None:
+            options["pose_pairs"] = model.config.pose_pairs
+        return cls(model.encode, model.config.max_frames, **options)
 
     def push(self, frame) -> list[WindowResult]:
         """Add the next frame (H, W, 3) uint8; returns the result of the window it completes, if any."""
