@@ -124,7 +124,7 @@ def test_bf16_answers_stay_within_stated_tolerance_of_fp32():
     shipped model its depth and cameras stay within the tolerance docs/performance.md states of the
     float32 answers, and are as accurate against the exact ground truth; --dtype fp32 is plain float32.
     Stated: depth and confidence 2e-3, cameras 3e-3 (relative norm; the shipped model chains its cameras from
-    adjacent frame pairs, measured 1.5e-3 here), with the same camera ATE against the truth (within 2%); tracks,
+    adjacent frame pairs, measured 1.0e-3 here), with the same camera ATE against the truth (within 2%); tracks,
     whose window hand-off thresholds visibility, 5e-2."""
     import torch
 
