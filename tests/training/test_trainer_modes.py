@@ -40,6 +40,18 @@ def test_bf16_autocast_trains(tmp_path, clip_dir):
     assert any(not weights[k].equal(fp32[k]) for k in weights)  # the matmuls did run in bf16
 
 
+def test_bf16_without_native_support_is_obeyed_and_said(tmp_path, clip_dir, monkeypatch, capsys):
+    import d4rt.training.trainer as trainer
+
+    monkeypatch.setattr(trainer, "native_bf16", lambda device: False)  # an AVX2-only CPU
+    steps = {"max_steps": 1, "checkpoint_every": 1}
+    run(tmp_path, "auto", clip_dir, run=steps)  # auto picks fp32 there: nothing to say
+    assert "emulated" not in capsys.readouterr().out
+    run(tmp_path, "bf16", clip_dir, run={**steps, "precision": "bf16"})
+    said = [line for line in capsys.readouterr().out.splitlines() if "emulated" in line]
+    assert len(said) == 1 and "run.precision bf16 on cpu" in said[0]
+
+
 def test_keep_best_publishes_the_best_validated_checkpoint_and_survives_a_resume(tmp_path, clip_dir):
     validation = {"every": 1, "directory": str(clip_dir), "num_clips": 1, "frames": 4, "track_points": 16,
                   "num_queries": 64, "keep_best": "loss/total", "tasks": []}  # the loss terms alone: fast
