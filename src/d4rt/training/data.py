@@ -84,12 +84,15 @@ def init_worker(worker_id: int) -> None:
 
 
 def training_loader(dataset: torch.utils.data.Dataset, stream: SampleStream, workers: int, seed: int, rank: int,
-                    pin_memory: bool) -> torch.utils.data.DataLoader:
+                    pin_memory: bool, spawn: bool = False) -> torch.utils.data.DataLoader:
     """A DataLoader over ``stream`` with ``workers`` processes; batches are dicts of stacked tensors.
     Create its iterator (which starts the workers) where SIGTERM / SIGINT are handled (inside
-    :class:`d4rt.training.stop.StopRequest`), so that forked workers never hold the default handlers."""
+    :class:`d4rt.training.stop.StopRequest`), so that forked workers never hold the default handlers.
+    ``spawn``: start the workers with "spawn" instead of the platform's default (fork on Linux), needed when
+    they use CUDA (a dataset that renders on the GPU); each then imports torch afresh (seconds, once)."""
     generator = torch.Generator().manual_seed(seed * 1_000_003 + rank)
+    context = torch.multiprocessing.get_context("spawn") if spawn and workers else None
     return torch.utils.data.DataLoader(
         EpochIndexedDataset(dataset), batch_sampler=stream, num_workers=workers, pin_memory=pin_memory,
         worker_init_fn=init_worker, generator=generator, persistent_workers=False,
-        prefetch_factor=2 if workers else None)
+        prefetch_factor=2 if workers else None, multiprocessing_context=context)

@@ -1,0 +1,101 @@
+#!/bin/bash
+# A lent GPU's 30 minutes, spent as the project asks: (1) the small preset trained from scratch with the shipped
+# recipe (configs/small-gpu-best.yaml), its weights brought back; (2) the giant bench for the README.
+# The device tool runs one command for at most 10 minutes and gives an idle machine back after 30 s, so the
+# lease is three calls made back to back, each from the repository root on the GPU machine:
+#   bash benchmarks/gpu_session.sh start    # measures the speed inside the warm-up, sets the run's length,
+#                                           # leaves training running (setsid) and returns a snapshot at ~9.5 min
+#   bash benchmarks/gpu_session.sh wait     # returns a second snapshot at ~19.5 min
+#   bash benchmarks/gpu_session.sh finish   # waits for the last step, runs the giant bench, returns everything
+# Each call writes into $OUT: weights.tar.part-aa, -ab, ... (model.safetensors, config.json, metrics.jsonl and
+# train_config.yaml of the run, split under the tool's 16 MiB per file), progress.txt, and at the end bench-gpu.json.
+# Join them here:  mkdir -p W && cat FILES_AT/weights.tar.part-* | tar -x -C W   (W is then a checkpoint).
+# TRAIN_S (default 1260) is the training's wall budget from the start of `start`; the rest of the 1,800 s goes to
+# the machine's start (about 1.5 min, counted), the transfers between calls and the bench. A run the machine
+# could not keep (`wait` or `finish` on a fresh machine) says so and brings back nothing new: the last snapshot
+# came back with the call before.
+set -euo pipefail
+PHASE=${1:?usage: gpu_session.sh start|wait|finish}
+TRAIN_S=${TRAIN_S:-1260}
+G=/tmp/d4rt-gpu
+RUN=$G/run
+CONFIG=${CONFIG:-configs/small-gpu-best.yaml}  # another config: e.g. a small one for a dry run on a CPU
+export PYTHONPATH=$PWD/src${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
+# The GPU image has torch and every core dependency but PyAV, which training and the bench never import; d4rt
+# runs from src/ (a dry run here may put a sitecustomize that blocks PyAV on PYTHONPATH, as the docs describe).
+OUT=${OUT:?OUT must name the folder whose files come back}
+
+now() { date +%s; }
+elapsed() { echo $(( $(now) - $(cat $G/t0) )); }
+running() { [ -f $G/pid ] && kill -0 "$(cat $G/pid)" 2>/dev/null; }
+
+snapshot() {  # the run's latest weights (written at every checkpoint) and log, in pieces the tool brings back
+  rm -f $OUT/weights.tar.part-*
+  if [ -f $RUN/model.safetensors ]; then
+    tar -C $RUN -cf - model.safetensors config.json metrics.jsonl train_config.yaml | split -b 15m - $OUT/weights.tar.part-
+  fi
+  { echo "phase $PHASE at ${1:-?} s"; tail -n 3 $RUN/metrics.jsonl 2>/dev/null || true
+    tail -n 5 $G/train-*.log 2>/dev/null || true; } > $OUT/progress.txt
+  cat $OUT/progress.txt
+}
+
+sleep_until() {  # until $1 s after the start, or until the run ends
+  while running && [ "$(elapsed)" -lt "$1" ]; do sleep 10; done
+}
+
+case $PHASE in
+start)
+  rm -rf $G && mkdir -p $G && now > $G/t0
+  nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no nvidia-smi"
+  python3 -c "import torch, d4rt; print('torch', torch.__version__, 'cuda', torch.version.cuda, torch.cuda.is_available())"
+  # Part A: 300 steps, inside the 500-step warm-up, whose learning rates do not depend on run.max_steps.
+  EXTRA=()
+  if ! python3 -m d4rt train --config $CONFIG --out $RUN --max-steps 300 --no-progress > $G/train-a.log 2>&1; then
+    tail -n 20 $G/train-a.log
+    echo "part A failed with clips rendered on the GPU; again with the CPU renderer"
+    EXTRA=(--set data.dataset.render_device=cpu --set data.workers=$(( $(nproc) - 1 )))
+    rm -rf $RUN
+    python3 -m d4rt train --config $CONFIG --out $RUN --max-steps 300 --no-progress "${EXTRA[@]}" > $G/train-a.log 2>&1 \
+      || { tail -n 40 $G/train-a.log; exit 1; }
+  fi
+  printf '%s\n' "${EXTRA[@]}" > $G/extra
+  # Steps per second over the logged windows after the first 100 steps (workers and kernels warmed up).
+  STEPS=$(python3 - "$RUN/metrics.jsonl" "$CONFIG" "$(elapsed)" "$TRAIN_S" <<'P'
+import json, statistics, sys, yaml
+rows = [json.loads(line) for line in open(sys.argv[1])]
+config = yaml.safe_load(open(sys.argv[2]))
+batch = config["data"]["batch_size"]
+assert config["optim"]["warmup_steps"] >= 300, "part A must end inside the warm-up (optim.warmup_steps >= 300)"
+speed = statistics.median(r["throughput/clips_per_s"] for r in rows if r["step"] > 100) / batch
+left = int(sys.argv[4]) - int(sys.argv[3]) - 60  # the resume's start-up
+print(max(600, 300 + int(speed * left)))
+print(f"part A: {speed:.2f} steps/s; the run will end at step {max(600, 300 + int(speed * left))}", file=sys.stderr)
+P
+)
+  echo $STEPS > $G/max_steps
+  setsid nohup python3 -m d4rt train --config $CONFIG --out $RUN --max-steps $STEPS --resume --no-progress \
+    "${EXTRA[@]}" > $G/train-b.log 2>&1 < /dev/null &
+  echo $! > $G/pid
+  sleep_until 560
+  snapshot "$(elapsed)"
+  ;;
+wait)
+  [ -f $G/t0 ] || { echo "no run on this machine (it was replaced): the last snapshot came back with 'start'"; exit 2; }
+  sleep_until 1150
+  snapshot "$(elapsed)"
+  ;;
+finish)
+  [ -f $G/t0 ] || { echo "no run on this machine (it was replaced): the last snapshot came back with 'wait'"; exit 2; }
+  sleep_until $(( TRAIN_S + 60 ))
+  if running; then  # past its budget: SIGTERM checkpoints the current step and exits 143
+    echo "still running at $(elapsed) s: stopping it (SIGTERM writes a checkpoint)"
+    kill -TERM "$(cat $G/pid)"
+    while running; do sleep 2; done
+  fi
+  snapshot "$(elapsed)"
+  timeout 300 python3 -m d4rt bench --preset giant --device cuda --dtype bf16 --frames 48 --size 256 \
+    --json $OUT/bench-gpu.json || echo "bench ended with status $?"
+  ;;
+*)
+  echo "unknown phase $PHASE (start, wait or finish)"; exit 2 ;;
+esac
