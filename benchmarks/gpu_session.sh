@@ -10,13 +10,13 @@
 # Each call writes into $OUT: weights.tar.part-aa, -ab, ... (model.safetensors, config.json, metrics.jsonl and
 # train_config.yaml of the run, split under the tool's 16 MiB per file), progress.txt, and at the end bench-gpu.json.
 # Join them here:  mkdir -p W && cat FILES_AT/weights.tar.part-* | tar -x -C W   (W is then a checkpoint).
-# TRAIN_S (default 1260) is the training's wall budget from the start of `start`; the rest of the 1,800 s goes to
+# TRAIN_S (default 1140) is the training's wall budget from the start of `start`; the rest of the 1,800 s goes to
 # the machine's start (about 1.5 min, counted), the transfers between calls and the bench. A run the machine
 # could not keep (`wait` or `finish` on a fresh machine) says so and brings back nothing new: the last snapshot
 # came back with the call before.
 set -euo pipefail
 PHASE=${1:?usage: gpu_session.sh start|wait|finish}
-TRAIN_S=${TRAIN_S:-1260}
+TRAIN_S=${TRAIN_S:-1140}
 G=/tmp/d4rt-gpu
 RUN=$G/run
 CONFIG=${CONFIG:-configs/small-gpu-best.yaml}  # another config: e.g. a small one for a dry run on a CPU
@@ -48,28 +48,38 @@ start)
   rm -rf $G && mkdir -p $G && now > $G/t0
   nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no nvidia-smi"
   python3 -c "import torch, d4rt; print('torch', torch.__version__, 'cuda', torch.version.cuda, torch.cuda.is_available())"
-  # Part A: 300 steps, inside the 500-step warm-up, whose learning rates do not depend on run.max_steps.
+  # Part A: up to 300 steps, inside the 500-step warm-up, whose learning rates do not depend on run.max_steps.
+  # Each try is time-boxed (SIGTERM checkpoints the step it reached), so that this call ends inside the tool's
+  # 10 minutes however slow a step is; a try counts if it logged 40 steps.
+  part_a() {  # $1: the try's deadline (s after the start); then extra arguments for d4rt train
+    local limit=$(( $1 - $(elapsed) )); shift
+    [ $limit -gt 30 ] || limit=30  # (timeout 0 would mean none)
+    rm -rf $RUN
+    timeout -s TERM $limit python3 -m d4rt train --config $CONFIG --out $RUN --max-steps 300 \
+      --no-progress "$@" > $G/train-a.log 2>&1 || true
+    python3 -c "import json, sys; sys.exit(0 if max(json.loads(l)['step'] for l in open('$RUN/metrics.jsonl')) >= 40 else 1)" \
+      2>/dev/null
+  }
   EXTRA=()
-  if ! python3 -m d4rt train --config $CONFIG --out $RUN --max-steps 300 --no-progress > $G/train-a.log 2>&1; then
+  if ! part_a 330; then
     tail -n 20 $G/train-a.log
     echo "part A failed with clips rendered on the GPU; again with the CPU renderer"
     EXTRA=(--set data.dataset.render_device=cpu --set data.workers=$(( $(nproc) - 1 )))
-    rm -rf $RUN
-    python3 -m d4rt train --config $CONFIG --out $RUN --max-steps 300 --no-progress "${EXTRA[@]}" > $G/train-a.log 2>&1 \
-      || { tail -n 40 $G/train-a.log; exit 1; }
+    part_a 500 "${EXTRA[@]}" || { tail -n 40 $G/train-a.log; exit 1; }
   fi
-  printf '%s\n' "${EXTRA[@]}" > $G/extra
-  # Steps per second over the logged windows after the first 100 steps (workers and kernels warmed up).
+  # Steps per second over the logged windows after the first third (workers and kernels warmed up).
   STEPS=$(python3 - "$RUN/metrics.jsonl" "$CONFIG" "$(elapsed)" "$TRAIN_S" <<'P'
 import json, statistics, sys, yaml
 rows = [json.loads(line) for line in open(sys.argv[1])]
 config = yaml.safe_load(open(sys.argv[2]))
 batch = config["data"]["batch_size"]
 assert config["optim"]["warmup_steps"] >= 300, "part A must end inside the warm-up (optim.warmup_steps >= 300)"
-speed = statistics.median(r["throughput/clips_per_s"] for r in rows if r["step"] > 100) / batch
+last = rows[-1]["step"]
+speed = statistics.median(r["throughput/clips_per_s"] for r in rows if r["step"] > last / 3) / batch
 left = int(sys.argv[4]) - int(sys.argv[3]) - 60  # the resume's start-up
-print(max(600, 300 + int(speed * left)))
-print(f"part A: {speed:.2f} steps/s; the run will end at step {max(600, 300 + int(speed * left))}", file=sys.stderr)
+steps = max(600, last + int(speed * left))
+print(steps)
+print(f"part A: {last} steps, {speed:.2f} steps/s; the run will end at step {steps}", file=sys.stderr)
 P
 )
   echo $STEPS > $G/max_steps
@@ -93,7 +103,7 @@ finish)
     while running; do sleep 2; done
   fi
   snapshot "$(elapsed)"
-  timeout 300 python3 -m d4rt bench --preset giant --device cuda --dtype bf16 --frames 48 --size 256 \
+  timeout 240 python3 -m d4rt bench --preset giant --device cuda --dtype bf16 --frames 48 --size 256 \
     --json $OUT/bench-gpu.json || echo "bench ended with status $?"
   ;;
 *)
