@@ -7,8 +7,11 @@
 # 2. The start and (1 - w) x start + w x S for w = 0.25, 0.5, 0.75 go through the same probe; the candidate is the
 #    largest w not worse than the start (none: stop).
 # 3. Focal gate: synthetic median below the shipped figure, real TUM within 20%. 4. Passed: `d4rt eval`.
+# With --focal-over-averages (stage 32 on; stated in its config before it ran) step 3 goes through every average that
+# kept the start's camera, largest w first, and the candidate is the first that passes the focal gate.
 set -e
-N=${1:?usage: judge_guarded_stage.sh STAGE_NUMBER}
+N=${1:?usage: judge_guarded_stage.sh STAGE_NUMBER [--focal-over-averages]}
+EACH=${2:-}
 cd /work/main
 RUN=/work/runs/ship-tiny-stage$N
 export J=/work/judge$N
@@ -33,12 +36,15 @@ J=os.environ['J']
 d=json.load(open(J + '/camera-probe-candidates-24-frames.json'))['models']
 ate={k: v['trajectory_ate']['adjacent']['mean'] for k, v in d.items()}
 ok=[w for w in ('0.75', '0.5', '0.25') if ate[J + '/avg-' + w] <= ate[J + '/start']]
-print(ok[0] if ok else 'none')")
-echo "w=$W $(date -u)" >> $J/judge.log
+print(' '.join(ok) if ok else 'none')")
+echo "w kept the camera: $W $(date -u)" >> $J/judge.log
 [ "$W" = none ] && { echo "stopped: no average keeps the start's camera" >> $J/judge.log; exit 0; }
-cp -r $J/avg-$W $J/candidate
-python tools/measure_focal.py --checkpoint $J/candidate --out $J/focal.json >> $J/judge.log 2>&1
-python - <<'P' >> $J/judge.log
+[ "$EACH" = --focal-over-averages ] || W=${W%% *}  # the rule of stages 29-31: the largest such w alone
+for w in $W; do
+  rm -rf $J/candidate && cp -r $J/avg-$w $J/candidate
+  python tools/measure_focal.py --checkpoint $J/candidate --out $J/focal-avg-$w.json >> $J/judge.log 2>&1
+  cp $J/focal-avg-$w.json $J/focal.json
+  python - <<'P' >> $J/judge.log
 import json, os
 J = os.environ["J"]
 n = json.load(open(J + "/focal.json")); o = json.load(open("/work/main/docs/model-card/focal.json"))
@@ -48,6 +54,9 @@ ok = a < b and abs(t) <= 0.20
 print(f"focal gate: synthetic {a:.4f} vs shipped {b:.4f}, TUM {t:+.4f} -> {'PASS' if ok else 'FAIL'}")
 open(J + "/gate", "w").write("PASS" if ok else "FAIL")
 P
+  echo "w=$w $(date -u)" >> $J/judge.log
+  [ "$(cat $J/gate)" = PASS ] && break
+done
 if [ "$(cat $J/gate)" = PASS ]; then
   d4rt eval --benchmark synthetic-dynamic-v1 --checkpoint $J/candidate --baseline oracle --baseline constant-depth \
      --out $J/eval.json --no-progress > $J/eval.md 2>> $J/judge.log
