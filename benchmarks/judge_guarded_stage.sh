@@ -11,24 +11,36 @@
 # instead the largest w that kept the start's camera and whose synthetic focal error on held-out clips
 # (tools/measure_focal.py --held-out: the benchmark's clip definitions from seeds it never uses) is below the start's;
 # the benchmark's focal gate (step 3) then runs once, on that candidate alone, so no choice looks at the benchmark.
+# With --soup-of CK1 CK2 ... (stage 33; after --focal-over-averages) there is no training and no step 1: S is the
+# equal average of the given checkpoints (each an earlier stage's own step S), and step 2 on is unchanged.
 set -e
-N=${1:?usage: judge_guarded_stage.sh STAGE_NUMBER [--focal-over-averages]}
+N=${1:?usage: judge_guarded_stage.sh STAGE_NUMBER [--focal-over-averages [--soup-of CHECKPOINT ...]]}
 EACH=${2:-}
+SOUP=()
+[ "${3:-}" = --soup-of ] && SOUP=("${@:4}")
 cd /work/main
 RUN=/work/runs/ship-tiny-stage$N
 export J=/work/judge$N
-while pgrep -f "ship-tiny-cpu-stage$N.yaml" >/dev/null; do sleep 20; done
-echo "training ended $(date -u)" >> $J/judge.log
-CK=""
-for s in 2500 3000 3500 4000; do CK="$CK $RUN/checkpoints/step-0000$s"; done
-python tools/camera_probe.py $CK --frames 24 --time-stride 1 --out $J/camera-probe-24-frames.json >> $J/judge.log 2>&1
-S=$(python -c "
+if [ ${#SOUP[@]} -gt 0 ]; then
+  S=(${SOUP[@]})
+  SHARE=$(python -c "print(1 / ${#SOUP[@]})")
+  echo "S = the equal average of ${SOUP[*]} $(date -u)" >> $J/judge.log
+else
+  while pgrep -f "ship-tiny-cpu-stage$N.yaml" >/dev/null; do sleep 20; done
+  echo "training ended $(date -u)" >> $J/judge.log
+  CK=""
+  for s in 2500 3000 3500 4000; do CK="$CK $RUN/checkpoints/step-0000$s"; done
+  python tools/camera_probe.py $CK --frames 24 --time-stride 1 --out $J/camera-probe-24-frames.json >> $J/judge.log 2>&1
+  S=$(python -c "
 import json, os
 d=json.load(open(os.environ['J'] + '/camera-probe-24-frames.json'))
 print(min(d['models'], key=lambda k: d['models'][k]['trajectory_ate']['adjacent']['mean']))")
-echo "S=$S $(date -u)" >> $J/judge.log
+  SHARE=1
+  echo "S=$S $(date -u)" >> $J/judge.log
+fi
 for w in 0.25 0.5 0.75; do
-  python tools/average_weights.py $J/start $S --weights $(python -c "print(1-$w)") $w --out $J/avg-$w >> $J/judge.log 2>&1
+  python tools/average_weights.py $J/start ${S[@]} \
+    --weights $(python -c "print(1 - $w, *[$w * $SHARE] * ${#S[@]})") --out $J/avg-$w >> $J/judge.log 2>&1
 done
 python tools/camera_probe.py $J/start $J/avg-0.25 $J/avg-0.5 $J/avg-0.75 --frames 24 --time-stride 1 \
     --out $J/camera-probe-candidates-24-frames.json >> $J/judge.log 2>&1
