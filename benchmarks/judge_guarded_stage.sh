@@ -13,7 +13,10 @@
 # the benchmark's focal gate (step 3) then runs once, on that candidate alone, so no choice looks at the benchmark.
 # With --soup-of CK1 CK2 ... (stage 33; after --focal-over-averages) there is no training and no step 1: S is the
 # equal average of the given checkpoints (each an earlier stage's own step S), and step 2 on is unchanged.
+# CAMERA_EVERY=1 in the environment (stage 34 on) runs the camera probe over all 48 held-out clip definitions instead
+# of every 3rd (16), so that one clip weighs a third as much in the mean.
 set -e
+EVERY=${CAMERA_EVERY:-3}
 N=${1:?usage: judge_guarded_stage.sh STAGE_NUMBER [--focal-over-averages [--soup-of CHECKPOINT ...]]}
 EACH=${2:-}
 SOUP=()
@@ -30,7 +33,8 @@ else
   echo "training ended $(date -u)" >> $J/judge.log
   CK=""
   for s in 2500 3000 3500 4000; do CK="$CK $RUN/checkpoints/step-0000$s"; done
-  python tools/camera_probe.py $CK --frames 24 --time-stride 1 --out $J/camera-probe-24-frames.json >> $J/judge.log 2>&1
+  python tools/camera_probe.py $CK --frames 24 --time-stride 1 --every $EVERY --out $J/camera-probe-24-frames.json \
+    >> $J/judge.log 2>&1
   S=$(python -c "
 import json, os
 d=json.load(open(os.environ['J'] + '/camera-probe-24-frames.json'))
@@ -42,7 +46,7 @@ for w in 0.25 0.5 0.75; do
   python tools/average_weights.py $J/start ${S[@]} \
     --weights $(python -c "print(1 - $w, *[$w * $SHARE] * ${#S[@]})") --out $J/avg-$w >> $J/judge.log 2>&1
 done
-python tools/camera_probe.py $J/start $J/avg-0.25 $J/avg-0.5 $J/avg-0.75 --frames 24 --time-stride 1 \
+python tools/camera_probe.py $J/start $J/avg-0.25 $J/avg-0.5 $J/avg-0.75 --frames 24 --time-stride 1 --every $EVERY \
     --out $J/camera-probe-candidates-24-frames.json >> $J/judge.log 2>&1
 W=$(python -c "
 import json, os
