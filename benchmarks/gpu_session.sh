@@ -5,18 +5,19 @@
 # lease is three calls made back to back, each from the repository root on the GPU machine:
 #   bash benchmarks/gpu_session.sh start    # measures the speed inside the warm-up, sets the run's length,
 #                                           # leaves training running (setsid) and returns a snapshot at ~9.5 min
-#   bash benchmarks/gpu_session.sh wait     # returns a second snapshot at ~19.5 min
+#   bash benchmarks/gpu_session.sh wait     # returns a second snapshot when the run ends (~16 min)
 #   bash benchmarks/gpu_session.sh finish   # waits for the last step, runs the giant bench, returns everything
 # Each call writes into $OUT: weights.tar.part-aa, -ab, ... (model.safetensors, config.json, metrics.jsonl and
 # train_config.yaml of the run, split under the tool's 16 MiB per file), progress.txt, and at the end bench-gpu.json.
 # Join them here:  mkdir -p W && cat FILES_AT/weights.tar.part-* | tar -x -C W   (W is then a checkpoint).
-# TRAIN_S (default 1140) is the training's wall budget from the start of `start`; the rest of the 1,800 s goes to
-# the machine's start (about 1.5 min, counted), the transfers between calls and the bench. A run the machine
+# TRAIN_S (default 900) is the training's wall budget from the start of `start`; the rest of the 1,800 s goes to
+# the machine's start (about 1.5 min, counted), the transfers between calls and the bench, which needs about 8 minutes
+# whatever the device: its Tab. 3 search runs trials of up to T / FPS wall time each (48 s at 1 FPS for 48 frames). A run the machine
 # could not keep (`wait` or `finish` on a fresh machine) says so and brings back nothing new: the last snapshot
 # came back with the call before.
 set -euo pipefail
 PHASE=${1:?usage: gpu_session.sh start|wait|finish}
-TRAIN_S=${TRAIN_S:-1140}
+TRAIN_S=${TRAIN_S:-900}
 G=/tmp/d4rt-gpu
 RUN=$G/run
 CONFIG=${CONFIG:-configs/small-gpu-best.yaml}  # another config: e.g. a small one for a dry run on a CPU
@@ -91,7 +92,7 @@ P
   ;;
 wait)
   [ -f $G/t0 ] || { echo "no run on this machine (it was replaced): the last snapshot came back with 'start'"; exit 2; }
-  sleep_until 1150
+  sleep_until $(( TRAIN_S + 60 ))
   snapshot "$(elapsed)"
   ;;
 finish)
@@ -103,8 +104,9 @@ finish)
     while running; do sleep 2; done
   fi
   snapshot "$(elapsed)"
-  timeout 240 python3 -m d4rt bench --preset giant --device cuda --dtype bf16 --frames 48 --size 256 \
-    --json $OUT/bench-gpu.json || echo "bench ended with status $?"
+  # Its console report comes back too (bench-gpu.txt), whatever the time limit leaves of it.
+  timeout 540 python3 -m d4rt bench --preset giant --device cuda --dtype bf16 --frames 48 --size 256 \
+    --json $OUT/bench-gpu.json 2>&1 | tee $OUT/bench-gpu.txt || echo "bench ended with status $?"
   ;;
 *)
   echo "unknown phase $PHASE (start, wait or finish)"; exit 2 ;;
