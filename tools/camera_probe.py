@@ -156,9 +156,9 @@ def main() -> None:
     parser.add_argument("--time-stride", type=int, default=TIME_STRIDE,
                         help=f"time steps between frames (default {TIME_STRIDE}; synthetic-dynamic-v1 uses 1)")
     args = parser.parse_args()
-    torch.set_num_threads(1)
     if args.every < 1:
-        raise SystemExit(f"--every must be at least 1, got {args.every}")
+        parser.error(f"--every must be at least 1, got {args.every}")
+    torch.set_num_threads(1)
     specs = [replace(s, seed=HELD_OUT_SEED + s.index) for s in clip_specs()[::args.every]]
     clips = [(f"held_out_{s.index:02d}", render_clip(s.seed, args.frames, s.height, s.width,
                                                       **(vars(s.options) | {"time_stride": args.time_stride})))

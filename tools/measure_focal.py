@@ -23,12 +23,11 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
-
-from dataclasses import replace
 
 from d4rt.cli.demo import TUM_FOLDER, TUM_FX, tum_frames_dir
 from d4rt.evaluation.synthetic_benchmark import NAME as BENCHMARK

@@ -82,8 +82,13 @@ class DataSpec:
     def num_queries(self) -> int:
         return self.tracks.num_queries if self.tracks else self.dataset.sampler.num_queries
 
-    def build_dataset(self) -> ClipQueryDataset | TrackQueryDataset:
-        return build_dataset(self.dataset, self.tracks)
+    def build_dataset(self, device: str | None = None) -> ClipQueryDataset | TrackQueryDataset:
+        """The training dataset. ``device``: the process's torch device; a ``render_device`` of plain "cuda" becomes
+        it, so that under torchrun each rank renders on its own GPU."""
+        dataset = self.dataset
+        if dataset.render_device == "cuda" and device is not None and device.startswith("cuda"):
+            dataset = dataclasses.replace(dataset, render_device=device)
+        return build_dataset(dataset, self.tracks)
 
 
 @dataclass

@@ -31,7 +31,7 @@ import json
 import math
 import os
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -43,7 +43,6 @@ from d4rt.errors import UserError
 from d4rt.model import D4RT
 from d4rt.model.weights import CONFIG_NAME, WEIGHTS_NAME, check_state_dict
 from d4rt.training import checkpoint as ckpt
-from d4rt.data import build_dataset
 from d4rt.training.config import TrainConfig
 from d4rt.training.data import SampleStream, training_loader
 from d4rt.training.distributed import (
@@ -213,16 +212,12 @@ class Trainer:
             _truncate_metrics(self.out / "metrics.jsonl", step)
 
         data, run = cfg.data, cfg.run
-        dataset_config = data.dataset
-        if dataset_config.render_device == "cuda" and context.device.type == "cuda":
-            # "cuda" means this rank's GPU (under torchrun each rank renders on its own).
-            dataset_config = replace(dataset_config, render_device=str(context.device))
-        dataset = build_dataset(dataset_config, data.tracks)
+        dataset = data.build_dataset(str(context.device))
         stream = SampleStream(len(dataset), run.seed, next_sample, data.batch_size, run.grad_accum, context.rank,
                               context.world_size)
         loader = training_loader(dataset, stream, data.workers, run.seed, context.rank,
                                  pin_memory=context.device.type == "cuda",
-                                 spawn=data.tracks is None and dataset_config.renders_on_gpu)
+                                 spawn=data.tracks is None and data.dataset.renders_on_gpu)
         validator = Validator(cfg.validation, cfg.loss, data.dataset.sampler) if cfg.validation.every else None
         best = _read_best(self.out, cfg.validation) if context.is_main else None
         logger = TrainLogger(self.out, context.is_main, run.max_steps, step, run.tensorboard, run.progress)
