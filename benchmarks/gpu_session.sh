@@ -83,7 +83,6 @@ print(steps)
 print(f"part A: {last} steps, {speed:.2f} steps/s; the run will end at step {steps}", file=sys.stderr)
 P
 )
-  echo $STEPS > $G/max_steps
   setsid nohup python3 -m d4rt train --config $CONFIG --out $RUN --max-steps $STEPS --resume --no-progress \
     "${EXTRA[@]}" > $G/train-b.log 2>&1 < /dev/null &
   echo $! > $G/pid

@@ -25,8 +25,7 @@ cd /work/main
 RUN=/work/runs/ship-tiny-stage$N
 export J=/work/judge$N
 if [ ${#SOUP[@]} -gt 0 ]; then
-  S=(${SOUP[@]})
-  SHARE=$(python -c "print(1 / ${#SOUP[@]})")
+  S=("${SOUP[@]}")
   echo "S = the equal average of ${SOUP[*]} $(date -u)" >> $J/judge.log
 else
   while pgrep -f "ship-tiny-cpu-stage$N.yaml" >/dev/null; do sleep 20; done
@@ -39,12 +38,11 @@ else
 import json, os
 d=json.load(open(os.environ['J'] + '/camera-probe-24-frames.json'))
 print(min(d['models'], key=lambda k: d['models'][k]['trajectory_ate']['adjacent']['mean']))")
-  SHARE=1
   echo "S=$S $(date -u)" >> $J/judge.log
 fi
 for w in 0.25 0.5 0.75; do
   python tools/average_weights.py $J/start ${S[@]} \
-    --weights $(python -c "print(1 - $w, *[$w * $SHARE] * ${#S[@]})") --out $J/avg-$w >> $J/judge.log 2>&1
+    --weights $(python -c "print(1 - $w, *[$w / ${#S[@]}] * ${#S[@]})") --out $J/avg-$w >> $J/judge.log 2>&1
 done
 python tools/camera_probe.py $J/start $J/avg-0.25 $J/avg-0.5 $J/avg-0.75 --frames 24 --time-stride 1 --every $EVERY \
     --out $J/camera-probe-candidates-24-frames.json >> $J/judge.log 2>&1
@@ -57,21 +55,25 @@ ok=[w for w in ('0.75', '0.5', '0.25') if ate[J + '/avg-' + w] <= ate[J + '/star
 print(' '.join(ok) if ok else 'none')")
 echo "w kept the camera: $W $(date -u)" >> $J/judge.log
 [ "$W" = none ] && { echo "stopped: no average keeps the start's camera" >> $J/judge.log; exit 0; }
+focal_below() {  # NEW REF KEY LABEL: exit 0 when NEW's synthetic median (under KEY) is below REF's, TUM within 20%
+  python - "$@" <<'P' >> $J/judge.log
+import json, sys
+new, ref, key, label = sys.argv[1:]
+n, o = json.load(open(new)), json.load(open(ref))
+a, b = n[key]["median_focal_error"], o[key]["median_focal_error"]
+t = n["tum-fr3-long-office-household"]["relative_error"]
+ok = a < b and abs(t) <= 0.20
+print(f"{label}: synthetic {a:.4f} vs {b:.4f}, TUM {t:+.4f} -> {'PASS' if ok else 'FAIL'}")
+sys.exit(0 if ok else 1)
+P
+}
 if [ "$EACH" = --focal-over-averages ]; then
   python tools/measure_focal.py --held-out --checkpoint $J/start --out $J/focal-held-out-start.json >> $J/judge.log 2>&1
   C=none
   for w in $W; do
     python tools/measure_focal.py --held-out --checkpoint $J/avg-$w --out $J/focal-held-out-avg-$w.json >> $J/judge.log 2>&1
-    if W_=$w python - <<'P' >> $J/judge.log; then C=$w; break; fi
-import json, os, sys
-J, w = os.environ["J"], os.environ["W_"]
-n = json.load(open(f"{J}/focal-held-out-avg-{w}.json")); o = json.load(open(f"{J}/focal-held-out-start.json"))
-a, b = (d["synthetic-held-out"]["median_focal_error"] for d in (n, o))
-t = n["tum-fr3-long-office-household"]["relative_error"]
-ok = a < b and abs(t) <= 0.20
-print(f"held-out focal, w = {w}: synthetic {a:.4f} vs the start's {b:.4f}, TUM {t:+.4f} -> {'kept' if ok else 'not kept'}")
-sys.exit(0 if ok else 1)
-P
+    if focal_below $J/focal-held-out-avg-$w.json $J/focal-held-out-start.json synthetic-held-out \
+        "held-out focal, w = $w against the start"; then C=$w; break; fi
   done
   echo "w=$C $(date -u)" >> $J/judge.log
   [ "$C" = none ] && { echo "stopped: no average that kept the camera beat the start's held-out focal" >> $J/judge.log; exit 0; }
@@ -82,16 +84,8 @@ else
 fi
 cp -r $J/avg-$W $J/candidate
 python tools/measure_focal.py --checkpoint $J/candidate --out $J/focal.json >> $J/judge.log 2>&1
-python - <<'P' >> $J/judge.log
-import json, os
-J = os.environ["J"]
-n = json.load(open(J + "/focal.json")); o = json.load(open("/work/main/docs/model-card/focal.json"))
-a = n["synthetic-dynamic-v1"]["median_focal_error"]; b = o["synthetic-dynamic-v1"]["median_focal_error"]
-t = n["tum-fr3-long-office-household"]["relative_error"]
-ok = a < b and abs(t) <= 0.20
-print(f"focal gate: synthetic {a:.4f} vs shipped {b:.4f}, TUM {t:+.4f} -> {'PASS' if ok else 'FAIL'}")
-open(J + "/gate", "w").write("PASS" if ok else "FAIL")
-P
+if focal_below $J/focal.json /work/main/docs/model-card/focal.json synthetic-dynamic-v1 "focal gate against shipped"
+then echo PASS > $J/gate; else echo FAIL > $J/gate; fi
 if [ "$(cat $J/gate)" = PASS ]; then
   d4rt eval --benchmark synthetic-dynamic-v1 --checkpoint $J/candidate --baseline oracle --baseline constant-depth \
      --out $J/eval.json --no-progress > $J/eval.md 2>> $J/judge.log
