@@ -3,6 +3,7 @@
     python benchmarks/bench_train.py                                   # tiny on CPU
     python benchmarks/bench_train.py --compare --pool POOL             # CPU set-ups side by side, one run
     python benchmarks/bench_train.py --profile --pool POOL             # where one CPU step's time goes
+    python benchmarks/bench_train.py --compile                         # eager vs torch.compile, same batches
     python benchmarks/bench_train.py --preset base --frames 48 --size 256 --queries 2048 --device cuda
     torchrun --nproc_per_node 8 benchmarks/bench_train.py --preset giant --frames 48 --size 256 \\
         --queries 2048 --strategy fsdp --checkpointing                   # the paper's setting
@@ -12,7 +13,8 @@ CUDA. ``--compare`` runs, one after the other in this process, the ways a CPU ru
 rendered on the fly by loader workers (which compete with training for the cores) or read from a
 pre-rendered pool (``d4rt generate``), fp32 or bf16 autocast, and the torch thread count; every ratio in
 its table is taken in the same run. ``--profile`` times the parts of one step (data, forward, loss,
-backward, optimiser) with torch's profiler.
+backward, optimiser) with torch's profiler. ``--compile`` times the model's step (forward, loss, backward,
+AdamW) on the same pre-loaded batches eager and under ``torch.compile``, and the compilation itself.
 """
 
 from __future__ import annotations
@@ -132,6 +134,52 @@ def profile(args) -> None:
     print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=args.profile_rows))
 
 
+def compile_compare(args) -> None:
+    """Steps/s of the model's training step, eager and under torch.compile, on the same pre-loaded batches (data
+    loading left out, as it is a loader worker's in a real run), and the seconds the first compiled step took."""
+    import copy
+
+    from d4rt.model import D4RT
+    from d4rt.training.losses import d4rt_loss
+    from d4rt.training.optimization import build_optimizer
+
+    config = build_config(args, source="files" if args.pool else "render", workers=0)
+    dataset = config.data.build_dataset()
+    batches = [{k: v[None] for k, v in dataset[i].items()} for i in range(args.steps - args.warmup)]
+    device = "cuda" if args.device in ("auto", "cuda") and torch.cuda.is_available() else "cpu"
+    batches = [{k: v.to(device) for k, v in b.items()} for b in batches]
+    autocast = torch.autocast(device, dtype=torch.bfloat16, enabled=args.precision == "bf16")
+    torch.manual_seed(0)
+    start_model = D4RT(config.validate()).train().to(device)
+    rates = {}
+    for mode in ("eager", "torch.compile"):
+        model = copy.deepcopy(start_model)
+        optimizer = build_optimizer(model, config.optim)
+        forward = torch.compile(model) if mode == "torch.compile" else model
+
+        def step(batch) -> None:
+            with autocast:
+                out = forward(batch["video"], batch["queries"], batch["aspect_ratio"])
+            loss, _ = d4rt_loss(out, batch, config.loss)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+            optimizer.step()
+            optimizer.zero_grad(set_to_none=True)
+
+        first = time.perf_counter()
+        step(batches[0])  # compiles (once per input shape)
+        first = time.perf_counter() - first
+        begin = time.perf_counter()
+        for batch in batches[1:]:
+            step(batch)
+        if device == "cuda":
+            torch.cuda.synchronize()
+        rates[mode] = (len(batches) - 1) / (time.perf_counter() - begin)
+        print(f"  {mode}: {rates[mode]:.2f} steps/s, first step {first:.1f} s", flush=True)
+    print(f"{args.preset}, {args.frames} frames at {args.size}x{args.size}, {args.queries} queries, {args.precision}, "
+          f"{device}, {torch.get_num_threads()} threads: torch.compile {rates['torch.compile'] / rates['eager']:.2f}x eager")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--preset", default="tiny")
@@ -153,7 +201,10 @@ def main() -> None:
     parser.add_argument("--compare", action="store_true", help="CPU set-ups side by side (needs --pool)")
     parser.add_argument("--profile", action="store_true", help="time the parts of a step")
     parser.add_argument("--profile-rows", type=int, default=15)
+    parser.add_argument("--compile", action="store_true", help="eager vs torch.compile on the same batches")
     args = parser.parse_args()
+    if args.compile:
+        return compile_compare(args)
     if args.compare:
         if args.pool is None:
             parser.error("--compare needs --pool (a d4rt generate directory)")

@@ -3,7 +3,7 @@
 #   bash benchmarks/judge_guarded_stage.sh N
 # Start: /work/judgeN/start (a copy of the shipped weights made before training). Run from /work/main after
 # `d4rt train --config configs/ship-tiny-cpu-stageN.yaml --out /work/runs/ship-tiny-stageN` has been started.
-# 1. The kept raw checkpoints of steps 2,500-4,000 go through the held-out camera probe; the lowest is step S.
+# 1. The kept raw checkpoints of steps 2,500-4,000 (PROBE_STEPS) go through the held-out camera probe; the lowest is step S.
 # 2. The start and (1 - w) x start + w x S for w = 0.25, 0.5, 0.75 go through the same probe; the candidate is the
 #    largest w not worse than the start (none: stop).
 # 3. Focal gate: synthetic median below the shipped figure, real TUM within 20%. 4. Passed: `d4rt eval`.
@@ -15,8 +15,11 @@
 # equal average of the given checkpoints (each an earlier stage's own step S), and step 2 on is unchanged.
 # CAMERA_EVERY=1 in the environment (stage 34 on) runs the camera probe over all 48 held-out clip definitions instead
 # of every 3rd (16), so that one clip weighs a third as much in the mean.
+# PROBE_STEPS="625 750 875 1000" in the environment (stage 35 on) names the raw checkpoints of step 1 when a run is not
+# 4,000 steps long (default: 2500 3000 3500 4000).
 set -e
 EVERY=${CAMERA_EVERY:-3}
+PROBE_STEPS=${PROBE_STEPS:-2500 3000 3500 4000}
 N=${1:?usage: judge_guarded_stage.sh STAGE_NUMBER [--focal-over-averages [--soup-of CHECKPOINT ...]]}
 EACH=${2:-}
 SOUP=()
@@ -31,7 +34,7 @@ else
   while pgrep -f "ship-tiny-cpu-stage$N.yaml" >/dev/null; do sleep 20; done
   echo "training ended $(date -u)" >> $J/judge.log
   CK=""
-  for s in 2500 3000 3500 4000; do CK="$CK $RUN/checkpoints/step-0000$s"; done
+  for s in $PROBE_STEPS; do CK="$CK $(printf "$RUN/checkpoints/step-%08d" "$s")"; done
   python tools/camera_probe.py $CK --frames 24 --time-stride 1 --every $EVERY --out $J/camera-probe-24-frames.json \
     >> $J/judge.log 2>&1
   S=$(python -c "

@@ -29,12 +29,12 @@ from d4rt.model import D4RT
 from d4rt.training.checkpoint import latest_checkpoint
 
 
-def training_seconds(records: list[dict]) -> float:
-    """Sum over logged windows of (steps in the window) / (steps per second)."""
+def training_seconds(records: list[dict], clips_per_step: int) -> float:
+    """Sum over logged windows of (clips in the window) / (clips per second)."""
     total, previous = 0.0, 0
     for record in records:
         if "throughput/clips_per_s" in record:
-            total += (record["step"] - previous) / record["throughput/clips_per_s"]
+            total += (record["step"] - previous) * clips_per_step / record["throughput/clips_per_s"]
             previous = record["step"]
     return total
 
@@ -57,7 +57,7 @@ def summarise(run: Path, log: Path | None = None) -> dict:
         "frames_per_clip": dataset["frames"],
         "input_size": dataset["size"],
         "queries_per_clip": dataset["sampler"]["num_queries"],
-        "training_seconds": training_seconds(records),
+        "training_seconds": training_seconds(records, batch),
         "wall_seconds": (checkpoint / "trainer.json").stat().st_mtime - (run / "train_config.yaml").stat().st_mtime,
         "resumed": log is not None and "resumed from" in log.read_text(errors="replace"),
         "hardware": {"cpu": cpu_name(), "logical_cpus": os.cpu_count(), "device": config["run"]["device"],
