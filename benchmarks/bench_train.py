@@ -204,6 +204,8 @@ def main() -> None:
     parser.add_argument("--compile", action="store_true", help="eager vs torch.compile on the same batches")
     args = parser.parse_args()
     if args.compile:
+        if args.steps - args.warmup < 2:
+            parser.error("--compile needs --steps at least --warmup + 2 (one step to compile, one or more to time)")
         return compile_compare(args)
     if args.compare:
         if args.pool is None:
