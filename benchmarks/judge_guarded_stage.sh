@@ -17,6 +17,8 @@
 # of every 3rd (16), so that one clip weighs a third as much in the mean.
 # PROBE_STEPS="625 750 875 1000" in the environment (stage 35 on) names the raw checkpoints of step 1 when a run is not
 # 4,000 steps long (default: 2500 3000 3500 4000).
+# PROBE_EMA="3000" in the environment (stage 38 on) adds the moving average of the weights (optim.ema_decay) kept in
+# those checkpoints (step-N/ema) to step 1's candidates for S.
 set -e
 EVERY=${CAMERA_EVERY:-3}
 PROBE_STEPS=${PROBE_STEPS:-2500 3000 3500 4000}
@@ -35,6 +37,7 @@ else
   echo "training ended $(date -u)" >> $J/judge.log
   CK=""
   for s in $PROBE_STEPS; do CK="$CK $(printf "$RUN/checkpoints/step-%08d" "$s")"; done
+  for s in ${PROBE_EMA:-}; do CK="$CK $(printf "$RUN/checkpoints/step-%08d/ema" "$s")"; done
   python tools/camera_probe.py $CK --frames 24 --time-stride 1 --every $EVERY --out $J/camera-probe-24-frames.json \
     >> $J/judge.log 2>&1
   S=$(python -c "
