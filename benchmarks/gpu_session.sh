@@ -7,6 +7,9 @@
 #                                           # leaves training running (setsid) and returns a snapshot at ~9.5 min
 #   bash benchmarks/gpu_session.sh wait     # returns a second snapshot when the run ends (~16 min)
 #   bash benchmarks/gpu_session.sh finish   # waits for the last step, runs the giant bench, returns everything
+# A 15-minute lease (the machine's start counted) has room for two calls instead (docs/training.md):
+#   TRAIN_S=300 PART_A_S=110 CALL_S=570 bash benchmarks/gpu_session.sh lease   # train, snapshot, start the bench
+#   bash benchmarks/gpu_session.sh collect  # only if the bench was still running: waits WAIT_S (150 s) for it
 # Each call writes into $OUT: weights.tar.part-aa, -ab, ... (model.safetensors, config.json, metrics.jsonl and
 # train_config.yaml of the run, split under the tool's 16 MiB per file), progress.txt, and at the end bench-gpu.json.
 # Join them here:  mkdir -p W && cat FILES_AT/weights.tar.part-* | tar -x -C W   (W is then a checkpoint).
@@ -107,6 +110,61 @@ finish)
   timeout 540 python3 -m d4rt bench --preset giant --device cuda --dtype bf16 --frames 48 --size 256 \
     --json $OUT/bench-gpu.json 2>&1 | tee $OUT/bench-gpu.txt || echo "bench ended with status $?"
   ;;
+lease)  # a 15-minute lease in two calls: this one (<= 600 s) trains for TRAIN_S, snapshots, starts the bench
+  # in the background and returns at CALL_S with the weights and the bench's first lines; `collect` returns the rest.
+  rm -rf $G && mkdir -p $G && now > $G/t0
+  nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no nvidia-smi"
+  CALL_S=${CALL_S:-570}; PART_A_S=${PART_A_S:-120}
+  rm -rf $RUN
+  EXTRA=()
+  timeout -s TERM $PART_A_S python3 -m d4rt train --config $CONFIG --out $RUN --max-steps 300 --no-progress \
+    > $G/train-a.log 2>&1 || true
+  if ! python3 -c "import json, sys; sys.exit(0 if max(json.loads(l)['step'] for l in open('$RUN/metrics.jsonl')) >= 20 else 1)" 2>/dev/null; then
+    tail -n 20 $G/train-a.log
+    echo "part A failed with clips rendered on the GPU; on with the CPU renderer"
+    EXTRA=(--set data.dataset.render_device=cpu --set data.workers=$(( $(nproc) - 1 )))
+    rm -rf $RUN
+  fi
+  STEPS=$(python3 - "$RUN/metrics.jsonl" "$CONFIG" "$(elapsed)" "$TRAIN_S" <<'P'
+import json, os, statistics, sys, yaml
+config = yaml.safe_load(open(sys.argv[2]))
+batch = config["data"]["batch_size"]
+if os.path.exists(sys.argv[1]):
+    rows = [json.loads(line) for line in open(sys.argv[1])]
+    last = rows[-1]["step"]
+    speed = statistics.median(r["throughput/clips_per_s"] for r in rows if r["step"] > last / 3) / batch
+else:
+    last, speed = 0, 1.0  # the CPU renderer's guess
+left = int(sys.argv[4]) - int(sys.argv[3]) - 45  # the resume's start-up
+steps = max(last + 100, last + int(speed * left))
+print(steps)
+print(f"part A: {last} steps, {speed:.2f} steps/s; the run will end at step {steps}", file=sys.stderr)
+P
+)
+  setsid nohup python3 -m d4rt train --config $CONFIG --out $RUN --max-steps $STEPS --resume --no-progress \
+    "${EXTRA[@]}" > $G/train-b.log 2>&1 < /dev/null &
+  echo $! > $G/pid
+  sleep_until $(( TRAIN_S + 20 ))
+  if running; then
+    echo "still running at $(elapsed) s: stopping it (SIGTERM writes a checkpoint)"
+    kill -TERM "$(cat $G/pid)"
+    while running; do sleep 2; done
+  fi
+  snapshot "$(elapsed)"
+  setsid nohup python3 -m d4rt bench --preset giant --device cuda --dtype bf16 --frames 48 --size 256 \
+    --tolerance ${BENCH_TOLERANCE:-0.05} --no-progress --json $G/bench-gpu.json > $G/bench-gpu.txt 2>&1 < /dev/null &
+  echo $! > $G/bench.pid
+  while kill -0 "$(cat $G/bench.pid)" 2>/dev/null && [ "$(elapsed)" -lt $CALL_S ]; do sleep 5; done
+  cp $G/bench-gpu.txt $OUT/; cp $G/bench-gpu.json $OUT/ 2>/dev/null || true
+  cat $G/bench-gpu.txt
+  ;;
+collect)  # the bench `lease` left running: waits up to WAIT_S for it, returns what it printed
+  [ -f $G/bench.pid ] || { echo "no bench on this machine (it was replaced): its first lines came back with 'lease'"; exit 2; }
+  END=$(( $(now) + ${WAIT_S:-150} ))
+  while kill -0 "$(cat $G/bench.pid)" 2>/dev/null && [ "$(now)" -lt $END ]; do sleep 3; done
+  cp $G/bench-gpu.txt $OUT/; cp $G/bench-gpu.json $OUT/ 2>/dev/null || true
+  cat $G/bench-gpu.txt
+  ;;
 *)
-  echo "unknown phase $PHASE (start, wait or finish)"; exit 2 ;;
+  echo "unknown phase $PHASE (start, wait, finish, lease or collect)"; exit 2 ;;
 esac

@@ -41,6 +41,17 @@ def test_track_queries_share_their_source_embedding_and_answer_the_same(make_mod
         torch.testing.assert_close(shared[key], unshared[key], atol=ATOL, rtol=0)
 
 
+def test_sharing_is_the_default_on_a_cpu(make_model, random_video):
+    # On a CPU sharing is faster (1.07x); on a GPU it is not the default (0.76x on an H200: README).
+    model = make_model()
+    rows = counting_source_rows(model)
+    frames = 4
+    scene = model.encode(random_video(frames, 32, 32))
+    queries = track_queries(random_sources(5, frames, torch.Generator().manual_seed(1)), frames)
+    scene.query(queries, chunk_size=len(queries))
+    assert sum(rows) == 5
+
+
 def test_sharing_only_joins_consecutive_equal_sources(make_model, random_video, random_queries):
     model = make_model()
     scene = model.encode(random_video(4, 32, 32))
