@@ -2,7 +2,8 @@
 
     python benchmarks/bench_train.py                                   # tiny on CPU
     python benchmarks/bench_train.py --compare --pool POOL             # CPU set-ups side by side, one run
-    python benchmarks/bench_train.py --profile --pool POOL             # where one CPU step's time goes
+    python benchmarks/bench_train.py --profile --pool POOL             # where one step's time goes (--device
+                                                                       # cuda: the model on the GPU, CUDA kernels)
     python benchmarks/bench_train.py --compile                         # eager vs torch.compile, same batches
     python benchmarks/bench_train.py --preset base --frames 48 --size 256 --queries 2048 --device cuda
     torchrun --nproc_per_node 8 benchmarks/bench_train.py --preset giant --frames 48 --size 256 \\
@@ -96,21 +97,26 @@ def profile(args) -> None:
 
     config = build_config(args, source="files" if args.pool else "render", workers=0)
     model_config = config.validate()
-    model = D4RT(model_config).train()
+    device = torch.device("cuda" if args.device in ("auto", "cuda") and torch.cuda.is_available() else
+                          "cpu" if args.device == "auto" else args.device)
+    model = D4RT(model_config).train().to(device)
     optimizer = build_optimizer(model, config.optim)
-    dataset = config.data.build_dataset()
-    autocast = torch.autocast("cpu", dtype=torch.bfloat16, enabled=config.run.precision == "bf16")
+    dataset = config.data.build_dataset()  # rendered on the CPU, in this process: the data row is one core's
+    bf16 = config.run.precision == "bf16" or (config.run.precision == "auto" and device.type == "cuda")
+    autocast = torch.autocast(device.type, dtype=torch.bfloat16, enabled=bf16)
     parts: dict[str, float] = {}
 
-    def timed(name, fn):
+    def timed(name, fn):  # on a GPU each part is waited for, so its row is its own kernels' time
         start = time.perf_counter()
         value = fn()
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
         parts[name] = parts.get(name, 0.0) + time.perf_counter() - start
         return value
 
     def step(index: int) -> None:
         batch = timed("data (load, sample, oracle, augment)",
-                      lambda: {k: v[None] for k, v in dataset[index % len(dataset)].items()})
+                      lambda: {k: v[None].to(device) for k, v in dataset[index % len(dataset)].items()})
         with autocast:
             out = timed("forward (encoder + decoder)",
                         lambda: model(batch["video"], batch["queries"], batch["aspect_ratio"]))
@@ -122,16 +128,20 @@ def profile(args) -> None:
     for i in range(args.warmup):
         step(i)
     parts.clear()
-    with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) as prof:
+    activities = [torch.profiler.ProfilerActivity.CPU]
+    if device.type == "cuda":
+        activities.append(torch.profiler.ProfilerActivity.CUDA)
+    with torch.profiler.profile(activities=activities) as prof:
         for i in range(args.warmup, args.steps):
             step(i)
     total = sum(parts.values())
     n = args.steps - args.warmup
-    print(f"{args.preset}, {args.frames} frames at {args.size}, {args.queries} queries, {config.run.precision}, "
-          f"{torch.get_num_threads()} threads: {total / n * 1000:.0f} ms per step")
+    print(f"{args.preset}, {args.frames} frames at {args.size}, {args.queries} queries, {device}, "
+          f"{'bf16' if bf16 else 'fp32'}, {torch.get_num_threads()} threads: {total / n * 1000:.0f} ms per step")
     for name, seconds in parts.items():
         print(f"  {name:40s} {seconds / n * 1000:7.1f} ms  {seconds / total:6.1%}")
-    print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=args.profile_rows))
+    sort = "self_cuda_time_total" if device.type == "cuda" else "self_cpu_time_total"
+    print(prof.key_averages().table(sort_by=sort, row_limit=args.profile_rows))
 
 
 def compile_compare(args) -> None:
