@@ -26,6 +26,23 @@ def test_scene_flow_is_zero_on_static_bodies_and_exact_on_moving_ones(room_clip)
     assert np.abs(world - flow[2, ys, xs]).max() < 1e-5
 
 
+def test_edge_and_blur_filters_are_exact_on_planes():
+    from d4rt.data.augment import _gaussian_blur
+    from d4rt.data.sampler import _sobel_magnitude
+    ys, xs = torch.meshgrid(torch.arange(20.0, dtype=torch.float64), torch.arange(30.0, dtype=torch.float64),
+                            indexing="ij")
+    plane = (0.3 * xs - 0.4 * ys)[None, None]  # (1, 1, 20, 30): gradient (0.3, -0.4) per pixel
+    magnitude = _sobel_magnitude(torch.cat([plane, 2 * plane], 1))  # two channels in quadrature
+    assert torch.allclose(magnitude[0, 1:-1, 1:-1], torch.tensor(0.5 * 5 ** 0.5, dtype=torch.float64), atol=1e-12)
+    # Top row: the replicated border halves the vertical difference, (0.3, -0.2).
+    assert torch.allclose(magnitude[0, 0, 1:-1], torch.tensor((5 * 0.13) ** 0.5, dtype=torch.float64), atol=1e-12)
+    # A symmetric kernel leaves a plane unchanged away from the borders (reach ceil(3 sigma) = 5), and a
+    # constant everywhere.
+    blurred = _gaussian_blur(plane, 1.6)
+    assert torch.allclose(blurred[..., 5:-5, 5:-5], plane[..., 5:-5, 5:-5], atol=1e-12)
+    assert torch.allclose(_gaussian_blur(torch.full((2, 3, 9, 7), 0.25), 2.0), torch.tensor(0.25), atol=1e-7)
+
+
 def test_boundary_mask_of_a_window_is_the_crop_of_the_whole_mask(room_clip):
     cfg = QuerySamplerConfig(boundary_radius=2)
     whole = boundary_mask(room_clip, cfg).numpy()

@@ -154,11 +154,15 @@ def _rotate_hue(x: torch.Tensor, fraction: float) -> torch.Tensor:
 
 
 def _gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Separable Gaussian blur of (T, C, H, W) with a radius of ceil(3 sigma) pixels; borders replicate."""
     radius = max(1, int(math.ceil(3 * sigma)))
-    k = torch.exp(-(torch.arange(-radius, radius + 1, dtype=x.dtype, device=x.device) ** 2) / (2 * sigma**2))
-    k = k / k.sum()
+    k = torch.exp(-(torch.arange(-radius, radius + 1, dtype=torch.float64) ** 2) / (2 * sigma**2))
+    k = (k / k.sum()).tolist()
     t, c, h, w = x.shape
-    y = x.reshape(t * c, 1, h, w)
-    y = F.conv2d(F.pad(y, (radius, radius, 0, 0), mode="replicate"), k.view(1, 1, 1, -1))
-    y = F.conv2d(F.pad(y, (0, 0, radius, radius), mode="replicate"), k.view(1, 1, -1, 1))
+    # Weighted sums of shifted slices, one axis at a time: a one-channel conv2d was 5-10x slower on a
+    # loader's single thread.
+    y = F.pad(x.reshape(t * c, 1, h, w), (radius, radius, 0, 0), mode="replicate")[:, 0]
+    y = sum(weight * y[:, :, i:i + w] for i, weight in enumerate(k))
+    y = F.pad(y[:, None], (0, 0, radius, radius), mode="replicate")[:, 0]
+    y = sum(weight * y[:, i:i + h] for i, weight in enumerate(k))
     return y.reshape(t, c, h, w)

@@ -66,12 +66,15 @@ class QuerySamplerConfig:
 def _sobel_magnitude(x: torch.Tensor) -> torch.Tensor:
     """Per-pixel gradient magnitude of (T, C, H, W) maps with the 3x3 Sobel filter (/8: units per pixel),
     summed over channels in quadrature -> (T, H, W). Borders replicate."""
-    kx = torch.tensor([[-1.0, 0.0, 1.0], [-2.0, 0.0, 2.0], [-1.0, 0.0, 1.0]], dtype=x.dtype, device=x.device) / 8.0
-    k = torch.stack([kx, kx.T])[:, None]  # (2, 1, 3, 3)
     t, c, h, w = x.shape
-    padded = F.pad(x.reshape(t * c, 1, h, w), (1, 1, 1, 1), mode="replicate")
-    g = F.conv2d(padded, k).reshape(t, c, 2, h, w)
-    return torch.sqrt((g * g).sum((1, 2)))
+    p = F.pad(x.reshape(t * c, 1, h, w), (1, 1, 1, 1), mode="replicate")[:, 0]  # (T*C, H+2, W+2)
+    # The filter is separable ([1, 2, 1] smoothing times a [-1, 0, 1] difference), and shifted slices of the
+    # padded maps do it in a few passes: a one-channel conv2d took about 70% of a loader's sampling time.
+    rows = p[:, :-2] + 2 * p[:, 1:-1] + p[:, 2:]                   # (T*C, H, W+2) smoothed down columns
+    cols = p[:, :, :-2] + 2 * p[:, :, 1:-1] + p[:, :, 2:]          # (T*C, H+2, W) smoothed along rows
+    gx = (rows[:, :, 2:] - rows[:, :, :-2]) / 8.0
+    gy = (cols[:, 2:] - cols[:, :-2]) / 8.0
+    return torch.sqrt((gx * gx + gy * gy).reshape(t, c, h, w).sum(1))
 
 
 def scene_flow(clip: Clip, frames=None, window: tuple[int, int, int, int] | None = None) -> torch.Tensor:
