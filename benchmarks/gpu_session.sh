@@ -117,14 +117,17 @@ lease)  # a 15-minute lease in two calls: this one (<= 600 s) trains for TRAIN_S
   CALL_S=${CALL_S:-570}; PART_A_S=${PART_A_S:-120}
   rm -rf $RUN
   EXTRA=()
+  # INIT_FROM: a model directory to continue from (an earlier lease's weights, carried; see docs/training.md)
+  INIT=(); [ -z "${INIT_FROM:-}" ] || INIT=(--set model.init_from=$INIT_FROM)
   timeout -s TERM $PART_A_S python3 -m d4rt train --config $CONFIG --out $RUN --max-steps 300 --no-progress \
-    > $G/train-a.log 2>&1 || true
+    "${INIT[@]}" > $G/train-a.log 2>&1 || true
   if ! python3 -c "import json, sys; sys.exit(0 if max(json.loads(l)['step'] for l in open('$RUN/metrics.jsonl')) >= 20 else 1)" 2>/dev/null; then
     tail -n 20 $G/train-a.log
     echo "part A failed with clips rendered on the GPU; on with the CPU renderer"
     EXTRA=(--set data.dataset.render_device=cpu --set data.workers=$(( $(nproc) - 1 )))
     rm -rf $RUN
   fi
+  EXTRA+=("${INIT[@]}")
   STEPS=$(python3 - "$RUN/metrics.jsonl" "$CONFIG" "$(elapsed)" "$TRAIN_S" <<'P'
 import json, os, statistics, sys, yaml
 config = yaml.safe_load(open(sys.argv[2]))
