@@ -99,6 +99,8 @@ def profile(args) -> None:
     model_config = config.validate()
     device = torch.device("cuda" if args.device in ("auto", "cuda") and torch.cuda.is_available() else
                           "cpu" if args.device == "auto" else args.device)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise SystemExit(f"bench_train: --device {args.device} asked for but CUDA is not available on this machine")
     model = D4RT(model_config).train().to(device)
     optimizer = build_optimizer(model, config.optim)
     dataset = config.data.build_dataset()  # rendered on the CPU, in this process: the data row is one core's

@@ -9,6 +9,7 @@
 #   bash benchmarks/gpu_session.sh finish   # waits for the last step, runs the giant bench, returns everything
 # A 15-minute lease (the machine's start counted) has room for two calls instead (docs/training.md):
 #   TRAIN_S=300 PART_A_S=110 CALL_S=570 bash benchmarks/gpu_session.sh lease   # train, snapshot, start the bench
+#   (PROBE_S=60 first profiles one GPU step, batch 1, into probe.txt; INIT_FROM=DIR continues from a model directory)
 #   bash benchmarks/gpu_session.sh collect  # only if the bench was still running: waits WAIT_S (150 s) for it
 # Each call writes into $OUT: weights.tar.part-aa, -ab, ... (model.safetensors, config.json, metrics.jsonl and
 # train_config.yaml of the run, split under the tool's 16 MiB per file), progress.txt, and at the end bench-gpu.json.
@@ -115,6 +116,11 @@ lease)  # a 15-minute lease in two calls: this one (<= 600 s) trains for TRAIN_S
   rm -rf $G && mkdir -p $G && now > $G/t0
   nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null || echo "no nvidia-smi"
   CALL_S=${CALL_S:-570}; PART_A_S=${PART_A_S:-120}
+  if [ "${PROBE_S:-0}" -gt 0 ]; then  # where a GPU step's time goes, batch 1, no loaders (counted in TRAIN_S)
+    timeout $PROBE_S python3 benchmarks/bench_train.py --profile --device cuda --preset small --frames 24 \
+      --size 128 --queries 2048 --crop-policy none --steps 16 --warmup 4 --profile-rows 12 2>&1 \
+      | grep -v Warning | tee $OUT/probe.txt || echo "probe ended with status $?"
+  fi
   rm -rf $RUN
   EXTRA=()
   # INIT_FROM: a model directory to continue from (an earlier lease's weights, carried; see docs/training.md)
