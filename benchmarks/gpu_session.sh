@@ -44,6 +44,19 @@ snapshot() {  # the run's latest weights (written at every checkpoint) and log, 
   cat $OUT/progress.txt
 }
 
+stop_run() {  # past its budget: SIGTERM checkpoints the current step and exits 143
+  if running; then
+    echo "still running at $(elapsed) s: stopping it (SIGTERM writes a checkpoint)"
+    kill -TERM "$(cat $G/pid)"
+    while running; do sleep 2; done
+  fi
+}
+
+return_bench() {  # the background bench's report so far (and its JSON once written) into $OUT
+  cp $G/bench-gpu.txt $OUT/; cp $G/bench-gpu.json $OUT/ 2>/dev/null || true
+  cat $G/bench-gpu.txt
+}
+
 sleep_until() {  # until $1 s after the start, or until the run ends
   while running && [ "$(elapsed)" -lt "$1" ]; do sleep 10; done
 }
@@ -101,11 +114,7 @@ wait)
 finish)
   [ -f $G/t0 ] || { echo "no run on this machine (it was replaced): the last snapshot came back with 'wait'"; exit 2; }
   sleep_until $(( TRAIN_S + 60 ))
-  if running; then  # past its budget: SIGTERM checkpoints the current step and exits 143
-    echo "still running at $(elapsed) s: stopping it (SIGTERM writes a checkpoint)"
-    kill -TERM "$(cat $G/pid)"
-    while running; do sleep 2; done
-  fi
+  stop_run
   snapshot "$(elapsed)"
   # Its console report comes back too (bench-gpu.txt), whatever the time limit leaves of it.
   timeout 540 python3 -m d4rt bench --preset giant --device cuda --dtype bf16 --frames 48 --size 256 \
@@ -154,25 +163,19 @@ P
     "${EXTRA[@]}" > $G/train-b.log 2>&1 < /dev/null &
   echo $! > $G/pid
   sleep_until $(( TRAIN_S + 20 ))
-  if running; then
-    echo "still running at $(elapsed) s: stopping it (SIGTERM writes a checkpoint)"
-    kill -TERM "$(cat $G/pid)"
-    while running; do sleep 2; done
-  fi
+  stop_run
   snapshot "$(elapsed)"
   setsid nohup python3 -m d4rt bench --preset giant --device cuda --dtype bf16 --frames 48 --size 256 \
     --tolerance ${BENCH_TOLERANCE:-0.05} --no-progress --json $G/bench-gpu.json > $G/bench-gpu.txt 2>&1 < /dev/null &
   echo $! > $G/bench.pid
   while kill -0 "$(cat $G/bench.pid)" 2>/dev/null && [ "$(elapsed)" -lt $CALL_S ]; do sleep 5; done
-  cp $G/bench-gpu.txt $OUT/; cp $G/bench-gpu.json $OUT/ 2>/dev/null || true
-  cat $G/bench-gpu.txt
+  return_bench
   ;;
 collect)  # the bench `lease` left running: waits up to WAIT_S for it, returns what it printed
   [ -f $G/bench.pid ] || { echo "no bench on this machine (it was replaced): its first lines came back with 'lease'"; exit 2; }
   END=$(( $(now) + ${WAIT_S:-150} ))
   while kill -0 "$(cat $G/bench.pid)" 2>/dev/null && [ "$(now)" -lt $END ]; do sleep 3; done
-  cp $G/bench-gpu.txt $OUT/; cp $G/bench-gpu.json $OUT/ 2>/dev/null || true
-  cat $G/bench-gpu.txt
+  return_bench
   ;;
 *)
   echo "unknown phase $PHASE (start, wait, finish, lease or collect)"; exit 2 ;;
