@@ -101,12 +101,16 @@ def run_train(config: dict, out: Path, steps: int, validate: bool, init_from: Pa
     with open(out.parent / f"{out.name}.log", "w") as log:
         subprocess.run([sys.executable, "-m", "d4rt", "train", "--config", str(out.parent / f"{out.name}.yaml"),
                         "--out", str(out)], env=env, stdout=log, stderr=subprocess.STDOUT, check=True)
+    return train_seconds(out)
+
+
+def train_seconds(out: Path, clips_per_step: int = 1) -> float:
+    """The time a run spent in optimiser steps: every logged window's clips divided by its rate (metrics.jsonl)."""
     records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
     rates = [r for r in records if "throughput/clips_per_s" in r]
-    # Every logged window's steps divided by its rate: the time spent in optimiser steps.
     seconds, last = 0.0, 0
     for r in rates:
-        seconds += (r["step"] - last) / r["throughput/clips_per_s"]
+        seconds += (r["step"] - last) * clips_per_step / r["throughput/clips_per_s"]
         last = r["step"]
     return seconds
 

@@ -1,0 +1,82 @@
+"""tools/loss_probe.py: held-out samples drawn as the config draws them (another seed), and a paired comparison
+that finds identical weights identical and per-sample terms equal to the loss computed directly."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from d4rt.model import D4RT
+from d4rt.training.config import TrainConfig
+from d4rt.training.losses import d4rt_loss
+
+ROOT = Path(__file__).resolve().parents[2]
+SHIPPED = ROOT / "src" / "d4rt" / "assets" / "d4rt-tiny"
+spec = importlib.util.spec_from_file_location("loss_probe", ROOT / "tools" / "loss_probe.py")
+loss_probe = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(loss_probe)
+
+
+@pytest.fixture
+def config_path(tmp_path: Path) -> Path:
+    config = yaml.safe_load((ROOT / "configs" / "tiny-cpu.yaml").read_text())
+    config["data"]["dataset"].update(render_pixels=1024, seed=3, frame_choices=[8, 12])
+    config["loss"] = {"weight_pose": 0.5}
+    config["model"]["overrides"] = {"relative_pose_head": True}
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return path
+
+
+def test_samples_come_from_the_held_out_seed_with_the_asked_queries(config_path):
+    config = TrainConfig.load(config_path)
+    first = loss_probe.held_out_samples(config, 2, 40)
+    again = loss_probe.held_out_samples(config, 2, 40)
+    assert [s["queries"].shape[0] for s in first] == [40, 40]
+    for a, b in zip(first, again):  # deterministic
+        assert all(torch.equal(a[k], b[k]) for k in a)
+    training = loss_probe.build_dataset(config.data.dataset)[0]  # the training stream's sample 0 differs
+    assert not torch.equal(training["video"][:1], first[0]["video"][:1])
+
+
+def test_identical_weights_compare_equal_and_terms_are_the_loss(config_path, tmp_path, capsys):
+    copy = tmp_path / "copy"
+    shutil.copytree(SHIPPED, copy)
+    out = tmp_path / "probe.json"
+    loss_probe.main([str(SHIPPED), str(copy), "--config", str(config_path), "--samples", "3", "--queries", "48",
+                     "--out", str(out)])
+    result = json.loads(out.read_text())
+    assert result["seed"] == loss_probe.HELD_OUT_SEED and result["reference"] == str(SHIPPED)
+    paired = result["paired_against_reference"][str(copy)]["3d"]
+    assert paired["difference"] == 0.0 and paired["low"] == 0.0 and paired["high"] == 0.0
+    assert paired["new_better_on"] == 0 and paired["sequences"] == 3
+    assert "pose_rotation" in result["models"][str(SHIPPED)]["mean"]  # the config's pose weight is kept
+    # The per-sample L3D is d4rt_loss's on the same sample.
+    config = TrainConfig.load(config_path)
+    sample = loss_probe.held_out_samples(config, 1, 48)[0]
+    batch = {k: v[None] for k, v in sample.items()}
+    model = D4RT.from_pretrained(SHIPPED).eval()
+    with torch.no_grad():
+        expected = float(d4rt_loss(model(batch["video"], batch["queries"], batch["aspect_ratio"]), batch,
+                                   config.loss)[1]["3d"])
+    values = result["models"][str(SHIPPED)]["samples"]["3d"]
+    assert values[0] == pytest.approx(expected, rel=1e-5)
+    assert result["models"][str(SHIPPED)]["mean"]["3d"] == pytest.approx(np.mean(values))
+    assert "| reference |" in capsys.readouterr().out
+
+
+def test_a_config_with_track_clips_is_refused(tmp_path, capsys):
+    config = yaml.safe_load((ROOT / "configs" / "tiny-cpu.yaml").read_text())
+    config["data"]["tracks"] = {"directory": str(tmp_path)}
+    path = tmp_path / "tracks.yaml"
+    path.write_text(yaml.safe_dump(config))
+    with pytest.raises(SystemExit):
+        loss_probe.main([str(SHIPPED), "--config", str(path), "--out", str(tmp_path / "x.json")])
+    assert "data.tracks" in capsys.readouterr().err

@@ -1,0 +1,50 @@
+"""benchmarks/equal_time_ab.py: each arm calibrated on its own speed, trained for its budget's step count with the
+cosine ending there, its overrides applied; a finished arm is kept when the driver runs again."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import yaml
+from subprocess_budget import budget
+from training_helpers import REPO, fast_config, subprocess_env, write_config
+
+
+def run_driver(config, out, *arms: list[str]) -> subprocess.CompletedProcess:
+    command = [sys.executable, str(REPO / "benchmarks" / "equal_time_ab.py"), "--config", str(config), "--out",
+               str(out), "--minutes", "0.05", "--calibration-steps", "30"]
+    for arm in arms:
+        command += ["--arm", *arm]
+    return subprocess.run(command, capture_output=True, text=True, env=subprocess_env(), timeout=budget(600))
+
+
+def test_two_arms_at_equal_time(clip_dir, tmp_path):
+    config = write_config(tmp_path / "config.yaml", fast_config(clip_dir, run={"grad_accum": 2, "max_steps": 5}))
+    out = tmp_path / "runs"
+    arms = (["q16", "data.dataset.sampler.num_queries=16"], ["q48", "data.dataset.sampler.num_queries=48"])
+    done = run_driver(config, out, *arms)
+    assert done.returncode == 0, done.stderr[-2000:]
+    result = json.loads((out / "arms.json").read_text())
+    assert [arm["name"] for arm in result["arms"]] == ["q16", "q48"]
+    for arm, queries in zip(result["arms"], (16, 48)):
+        steps = arm["steps"]
+        assert steps == max(1, int(arm["calibrated_steps_per_s"] * 0.05 * 60)) and arm["clips"] == 2 * steps
+        assert (out / arm["name"] / "checkpoints" / f"step-{steps:08d}").is_dir()
+        trained = yaml.safe_load((out / arm["name"] / "train_config.yaml").read_text())
+        assert trained["data"]["dataset"]["sampler"]["num_queries"] == queries
+        assert trained["optim"]["decay_steps"] == steps  # the cosine ends with the budget
+        assert arm["train_seconds"] > 0
+    logs = {name: (out / f"{name}.log").stat().st_size for name, _ in arms}
+    again = run_driver(config, out, *arms)  # finished arms are kept, not trained again
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert {name: (out / f"{name}.log").stat().st_size for name, _ in arms} == logs
+
+
+def test_one_arm_or_a_bad_override_is_refused(clip_dir, tmp_path):
+    config = write_config(tmp_path / "config.yaml", fast_config(clip_dir))
+    one = run_driver(config, tmp_path / "runs", ["a", "run.seed=1"])
+    assert one.returncode == 2 and "at least two arms" in one.stderr
+    bad = run_driver(config, tmp_path / "runs", ["a", "run.seed=1"], ["b", "run.seed"])
+    assert bad.returncode == 2 and "KEY=VALUE" in bad.stderr

@@ -1,0 +1,113 @@
+"""The training loss of checkpoints on held-out samples drawn exactly as a training config draws them (issue 14).
+
+    python tools/loss_probe.py CHECKPOINT [CHECKPOINT ...] --config configs/ship-tiny-cpu-stage39.yaml \\
+        --out probe.json [--samples 64] [--queries 2048]
+
+Why: the held-out benchmark figures (depth, focal, camera probes) move by less than their clips' spread in a run of
+one session (stage 38), so two recipes compared over tens of CPU-minutes cannot be told apart by them. The loss the
+runs minimise, measured on the same held-out samples for every checkpoint and compared per sample (paired), is the
+most sensitive statistic of how much a run has learnt of its own task. It does not replace the benchmark figures:
+a lower loss is necessary for a better model, not proof of one.
+
+The samples are ``config``'s training dataset (the same clip lengths, sizes, scene options, augmentation and query
+sampler) with its seed replaced by 6,000,000 (a stream no training stage, probe or benchmark draws), its first
+``--samples`` indices, each with ``--queries`` queries (the same for every checkpoint, whatever a run trained
+with). Every checkpoint answers them in fp32 without gradients; the terms are ``d4rt_loss``'s under the config's
+loss settings (``3d`` is the paper's L3D).
+
+Writes JSON: per checkpoint the mean of every term over the samples and the per-sample values; and for every
+checkpoint after the first, per term, the paired difference against the first (``tools/compare_evals.py``'s
+paired bootstrap over samples: mean difference, 95% interval, samples on which it is lower). Prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from compare_evals import paired_bootstrap  # noqa: E402
+
+from d4rt.data import build_dataset  # noqa: E402
+from d4rt.model import D4RT  # noqa: E402
+from d4rt.training.config import TrainConfig  # noqa: E402
+from d4rt.training.losses import d4rt_loss  # noqa: E402
+
+HELD_OUT_SEED = 6_000_000
+# The terms reported in the table (all terms are in the JSON).
+SHOWN = ("3d", "2d", "pose_rotation", "pose_translation", "confidence_mean")
+
+
+def held_out_samples(config: TrainConfig, samples: int, queries: int) -> list[dict[str, torch.Tensor]]:
+    """The first ``samples`` samples of the config's dataset with the held-out seed and ``queries`` queries each."""
+    dataset_config = config.data.dataset
+    sampler = dataclasses.replace(dataset_config.sampler, num_queries=queries)
+    dataset = build_dataset(dataclasses.replace(dataset_config, seed=HELD_OUT_SEED, sampler=sampler,
+                                                render_device="cpu"))
+    return [dataset[i] for i in tqdm(range(samples), desc="rendering held-out samples", leave=False)]
+
+
+@torch.no_grad()
+def sample_losses(model: D4RT, samples: list[dict[str, torch.Tensor]], config: TrainConfig) -> dict[str, list[float]]:
+    """Every loss term per sample: term -> (S,) values."""
+    model.eval()
+    terms: dict[str, list[float]] = {}
+    for sample in samples:
+        batch = {k: v[None] for k, v in sample.items()}
+        out = model(batch["video"], batch["queries"], batch["aspect_ratio"])
+        for key, value in d4rt_loss(out, batch, config.loss)[1].items():
+            terms.setdefault(key, []).append(float(value))
+    return terms
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("checkpoints", nargs="+", help="model directories (model.safetensors + config.json)")
+    parser.add_argument("--config", required=True, help="the training config whose samples and loss are probed")
+    parser.add_argument("--samples", type=int, default=64)
+    parser.add_argument("--queries", type=int, default=2048)
+    parser.add_argument("--out", required=True)
+    args = parser.parse_args(argv)
+    if args.samples < 2 or args.queries < 1:
+        parser.error("--samples must be at least 2 and --queries at least 1")
+    config = TrainConfig.load(args.config)
+    if config.data.tracks is not None:
+        parser.error(f"{args.config} trains on clips with tracks (data.tracks); this probe draws synthetic clips only")
+    torch.manual_seed(0)
+    samples = held_out_samples(config, args.samples, args.queries)
+    models = {}
+    for checkpoint in tqdm(args.checkpoints, desc="checkpoints"):
+        terms = sample_losses(D4RT.from_pretrained(checkpoint), samples, config)
+        models[checkpoint] = {"mean": {k: float(np.mean(v)) for k, v in terms.items()}, "samples": terms}
+    reference, *others = args.checkpoints
+    paired = {}
+    for checkpoint in others:
+        paired[checkpoint] = {}
+        for key, values in models[checkpoint]["samples"].items():
+            if key in models[reference]["samples"] and key != "confidence_mean":
+                base = np.array(models[reference]["samples"][key])
+                paired[checkpoint][key] = paired_bootstrap(base, np.array(values), np.ones(len(values)))
+    result = {"config": args.config, "seed": HELD_OUT_SEED, "samples": args.samples, "queries": args.queries,
+              "reference": reference, "models": models, "paired_against_reference": paired}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(result, indent=1))
+    shown = [k for k in SHOWN if k in models[reference]["mean"]]
+    print("| checkpoint | " + " | ".join(shown) + " | L3D against the first (95% interval), lower on |")
+    print("|---" * (len(shown) + 2) + "|")
+    for checkpoint in args.checkpoints:
+        means = " | ".join(f"{models[checkpoint]['mean'][k]:.4f}" for k in shown)
+        p = paired.get(checkpoint, {}).get("3d")
+        versus = (f"{p['difference']:+.4f} [{p['low']:+.4f}, {p['high']:+.4f}], {p['new_better_on']}/{p['sequences']}"
+                  if p else "reference")
+        print(f"| {checkpoint} | {means} | {versus} |")
+
+
+if __name__ == "__main__":
+    main()
