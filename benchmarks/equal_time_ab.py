@@ -27,7 +27,9 @@ from pathlib import Path
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from recipe_study import steps_per_second, train_seconds  # noqa: E402
+from recipe_study import steps_per_second  # noqa: E402
+
+from d4rt.training.logger import read_metrics, training_seconds  # noqa: E402
 
 
 def train(config: Path, out: Path, steps: int, overrides: list[str], resume: bool = False) -> None:
@@ -61,7 +63,7 @@ def run_arm(name: str, overrides: list[str], args: argparse.Namespace, clips_per
     if not finished(out, steps):
         train(args.config, out, steps, arm_overrides, resume=out.exists())
     result = {"name": name, "overrides": overrides, "calibrated_steps_per_s": rate, "steps": steps,
-              "clips": steps * clips_per_step, "train_seconds": train_seconds(out, clips_per_step)}
+              "clips": steps * clips_per_step, "train_seconds": training_seconds(read_metrics(out), clips_per_step)}
     print(f"| {name} | {' '.join(overrides)} | {rate:.3f} | {steps} | {result['clips']} | "
           f"{result['train_seconds'] / 60:.1f} |", flush=True)
     return result

@@ -34,6 +34,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from d4rt.training.logger import read_metrics, training_seconds
+
 # The recipe every variant starts from: the tiny preset on 8-frame clips of the pool.
 BASE = {
     "model": {"preset": "tiny", "overrides": {}},
@@ -101,23 +103,11 @@ def run_train(config: dict, out: Path, steps: int, validate: bool, init_from: Pa
     with open(out.parent / f"{out.name}.log", "w") as log:
         subprocess.run([sys.executable, "-m", "d4rt", "train", "--config", str(out.parent / f"{out.name}.yaml"),
                         "--out", str(out)], env=env, stdout=log, stderr=subprocess.STDOUT, check=True)
-    return train_seconds(out)
-
-
-def train_seconds(out: Path, clips_per_step: int = 1) -> float:
-    """The time a run spent in optimiser steps: every logged window's clips divided by its rate (metrics.jsonl)."""
-    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
-    rates = [r for r in records if "throughput/clips_per_s" in r]
-    seconds, last = 0.0, 0
-    for r in rates:
-        seconds += (r["step"] - last) * clips_per_step / r["throughput/clips_per_s"]
-        last = r["step"]
-    return seconds
+    return training_seconds(read_metrics(out), 1)
 
 
 def steps_per_second(out: Path, skip: int = 10) -> float:
-    records = [json.loads(line) for line in (out / "metrics.jsonl").read_text().splitlines()]
-    rates = [r["throughput/clips_per_s"] for r in records if "throughput/clips_per_s" in r and r["step"] > skip]
+    rates = [r["throughput/clips_per_s"] for r in read_metrics(out) if "throughput/clips_per_s" in r and r["step"] > skip]
     return float(np.mean(rates))
 
 
@@ -162,7 +152,7 @@ def study_variant(name: str, spec, args) -> dict:
         result["train_seconds"] += seconds
         result["steps"] += steps
         previous = out
-    records = [json.loads(line) for line in (previous / "metrics.jsonl").read_text().splitlines()]
+    records = read_metrics(previous)
     final = {}
     for r in records:
         final.update(r)

@@ -27,23 +27,14 @@ import torch
 from d4rt.devices import cpu_name
 from d4rt.model import D4RT
 from d4rt.training.checkpoint import latest_checkpoint
-
-
-def training_seconds(records: list[dict], clips_per_step: int) -> float:
-    """Sum over logged windows of (clips in the window) / (clips per second)."""
-    total, previous = 0.0, 0
-    for record in records:
-        if "throughput/clips_per_s" in record:
-            total += (record["step"] - previous) * clips_per_step / record["throughput/clips_per_s"]
-            previous = record["step"]
-    return total
+from d4rt.training.logger import read_metrics, training_seconds
 
 
 def summarise(run: Path, log: Path | None = None) -> dict:
     checkpoint = latest_checkpoint(run / "checkpoints")
     trainer = json.loads((checkpoint / "trainer.json").read_text())
     config = trainer["config"]
-    records = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    records = read_metrics(run)
     model = D4RT.from_pretrained(checkpoint)
     batch = config["data"]["batch_size"] * config["run"]["grad_accum"]
     dataset = config["data"]["dataset"]

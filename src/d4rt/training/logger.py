@@ -14,6 +14,22 @@ from pathlib import Path
 from d4rt.progress import progress_bar, write_line
 
 
+def read_metrics(run: str | Path) -> list[dict]:
+    """Every record of ``<run>/metrics.jsonl``, in the order logged."""
+    return [json.loads(line) for line in (Path(run) / "metrics.jsonl").read_text().splitlines() if line.strip()]
+
+
+def training_seconds(records: list[dict], clips_per_step: int) -> float:
+    """The time a run spent in optimiser steps (and data loading; validation and checkpoint writes excluded):
+    over the logged windows, the clips of each window divided by its ``throughput/clips_per_s``."""
+    total, previous = 0.0, 0
+    for record in records:
+        if "throughput/clips_per_s" in record:
+            total += (record["step"] - previous) * clips_per_step / record["throughput/clips_per_s"]
+            previous = record["step"]
+    return total
+
+
 class TrainLogger:
     """Logs scalars of one run. ``enabled=False`` (ranks other than 0) makes every method a no-op."""
 
