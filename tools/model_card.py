@@ -134,7 +134,7 @@ def stage_summary(training: dict, previous: int | None) -> str:
     return (f"{start}{training['clips_seen']:,} synthetic clips {source}, {frames_text} at "
             f"{training['input_size'][0]}x{training['input_size'][1]}, {crops}, "
             f"{training['queries_per_clip']:,} queries per clip; {training['steps']:,} steps of "
-            f"{training['clips_per_step']} clip, peak lr {config['optim']['lr']:g}; "
+            f"{training['clips_per_step']} clip{'s' if training['clips_per_step'] > 1 else ''}, peak lr {config['optim']['lr']:g}; "
             f"{training['training_seconds'] / 60:.0f} min of optimiser steps "
             f"({training['steps'] / training['training_seconds']:.2f} steps/s), {when}; CPU only: {hw['cpu']}, "
             f"{hw['logical_cpus']} logical cores (shared), {hw.get('torch_threads', '?')} torch thread(s), "
