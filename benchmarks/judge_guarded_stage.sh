@@ -19,8 +19,11 @@
 # 4,000 steps long (default: 2500 3000 3500 4000).
 # PROBE_EMA="3000" in the environment (stage 38 on) adds the moving average of the weights (optim.ema_decay) kept in
 # those checkpoints (step-N/ema) to step 1's candidates for S.
+# AVERAGE_WEIGHTS="0.25 0.5 0.75 1" in the environment (stage 41 on) names the w of step 2 (default 0.25 0.5 0.75);
+# w = 1 is S itself. Why: stage 39's raw checkpoints answered t_cam and its averages with the start did not.
 set -e
 EVERY=${CAMERA_EVERY:-3}
+export AVERAGE_WEIGHTS=${AVERAGE_WEIGHTS:-0.25 0.5 0.75}
 PROBE_STEPS=${PROBE_STEPS:-2500 3000 3500 4000}
 N=${1:?usage: judge_guarded_stage.sh STAGE_NUMBER [--focal-over-averages [--soup-of CHECKPOINT ...]]}
 EACH=${2:-}
@@ -46,18 +49,26 @@ d=json.load(open(os.environ['J'] + '/camera-probe-24-frames.json'))
 print(min(d['models'], key=lambda k: d['models'][k]['trajectory_ate']['adjacent']['mean']))")
   echo "S=$S $(date -u)" >> $J/judge.log
 fi
-for w in 0.25 0.5 0.75; do
-  python tools/average_weights.py $J/start ${S[@]} \
-    --weights $(python -c "print(1 - $w, *[$w / ${#S[@]}] * ${#S[@]})") --out $J/avg-$w >> $J/judge.log 2>&1
+for w in $AVERAGE_WEIGHTS; do
+  if [ "$w" = 1 ] && [ ${#S[@]} = 1 ]; then  # S itself (average_weights takes positive weights only)
+    mkdir -p $J/avg-1 && cp ${S[0]}/config.json ${S[0]}/model.safetensors $J/avg-1/
+  elif [ "$w" = 1 ]; then
+    python tools/average_weights.py ${S[@]} --weights $(python -c "print(*[1] * ${#S[@]})") --out $J/avg-1 \
+      >> $J/judge.log 2>&1
+  else
+    python tools/average_weights.py $J/start ${S[@]} \
+      --weights $(python -c "print(1 - $w, *[$w / ${#S[@]}] * ${#S[@]})") --out $J/avg-$w >> $J/judge.log 2>&1
+  fi
 done
-python tools/camera_probe.py $J/start $J/avg-0.25 $J/avg-0.5 $J/avg-0.75 --frames 24 --time-stride 1 --every $EVERY \
+python tools/camera_probe.py $J/start $(for w in $AVERAGE_WEIGHTS; do echo $J/avg-$w; done) --frames 24 --time-stride 1 --every $EVERY \
     --out $J/camera-probe-candidates-24-frames.json >> $J/judge.log 2>&1
 W=$(python -c "
 import json, os
 J=os.environ['J']
 d=json.load(open(J + '/camera-probe-candidates-24-frames.json'))['models']
 ate={k: v['trajectory_ate']['adjacent']['mean'] for k, v in d.items()}
-ok=[w for w in ('0.75', '0.5', '0.25') if ate[J + '/avg-' + w] <= ate[J + '/start']]
+ok=[w for w in sorted(os.environ['AVERAGE_WEIGHTS'].split(), key=float, reverse=True)
+    if ate[J + '/avg-' + w] <= ate[J + '/start']]
 print(' '.join(ok) if ok else 'none')")
 echo "w kept the camera: $W $(date -u)" >> $J/judge.log
 [ "$W" = none ] && { echo "stopped: no average keeps the start's camera" >> $J/judge.log; exit 0; }
