@@ -29,6 +29,7 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from recipe_study import steps_per_second  # noqa: E402
 
+from d4rt.errors import UserError  # noqa: E402
 from d4rt.training.logger import read_metrics, training_seconds  # noqa: E402
 
 
@@ -42,8 +43,11 @@ def train(config: Path, out: Path, steps: int, overrides: list[str], resume: boo
         command.append("--resume")
     env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
     out.parent.mkdir(parents=True, exist_ok=True)
-    with open(out.parent / f"{out.name}.log", "a") as log:
-        subprocess.run(command, env=env, stdout=log, stderr=subprocess.STDOUT, check=True)
+    log = out.parent / f"{out.name}.log"
+    with open(log, "a") as stream:
+        code = subprocess.run(command, env=env, stdout=stream, stderr=subprocess.STDOUT).returncode
+    if code != 0:
+        raise UserError(f"d4rt train for {out} exited with {code}; its output is in {log}")
 
 
 def finished(out: Path, steps: int) -> bool:
@@ -54,8 +58,9 @@ def finished(out: Path, steps: int) -> bool:
 def run_arm(name: str, overrides: list[str], args: argparse.Namespace, clips_per_step: int) -> dict:
     calibration = args.out / f"{name}-calibration"
     if not finished(calibration, args.calibration_steps):
-        train(args.config, calibration, args.calibration_steps,  # resumed, not appended to, if it was cut short
-              overrides + ["run.log_every=10", f"run.checkpoint_every={args.calibration_steps}", "validation.every=0"])
+        train(args.config, calibration, args.calibration_steps,
+              overrides + ["run.log_every=10", f"run.checkpoint_every={args.calibration_steps}", "validation.every=0"],
+              resume=calibration.exists())
     rate = steps_per_second(calibration, skip=10) / clips_per_step
     steps = max(1, int(rate * args.minutes * 60))
     out = args.out / name
@@ -91,7 +96,10 @@ def main(argv: list[str] | None = None) -> None:
     run = config.get("run", {})
     clips_per_step = int(run.get("grad_accum", 1)) * int(config.get("data", {}).get("batch_size", 1))
     print("| arm | overrides | steps/s | steps | clips | minutes in steps |\n|---|---|---|---|---|---|", flush=True)
-    results = [run_arm(arm[0], arm[1:], args, clips_per_step) for arm in args.arm]
+    try:
+        results = [run_arm(arm[0], arm[1:], args, clips_per_step) for arm in args.arm]
+    except UserError as error:
+        sys.exit(f"equal_time_ab.py: {error}")
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "arms.json").write_text(json.dumps({"config": str(args.config), "minutes": args.minutes,
                                                     "arms": results}, indent=1))

@@ -36,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from compare_evals import paired_bootstrap  # noqa: E402
 
 from d4rt.data import build_dataset  # noqa: E402
+from d4rt.errors import UserError  # noqa: E402
 from d4rt.model import D4RT  # noqa: E402
 from d4rt.training.config import TrainConfig  # noqa: E402
 from d4rt.training.losses import d4rt_loss  # noqa: E402
@@ -74,17 +75,22 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--samples", type=int, default=64)
     parser.add_argument("--queries", type=int, default=2048)
     parser.add_argument("--out", required=True)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1: beside a training run)")
     args = parser.parse_args(argv)
     if args.samples < 2 or args.queries < 1:
         parser.error("--samples must be at least 2 and --queries at least 1")
-    config = TrainConfig.load(args.config)
+    torch.set_num_threads(args.threads)
+    try:  # the config and every checkpoint load (strictly) before anything is rendered: a bad path fails at once
+        config = TrainConfig.load(args.config)
+        networks = {checkpoint: D4RT.from_pretrained(checkpoint) for checkpoint in args.checkpoints}
+    except UserError as error:
+        parser.error(str(error))
     if config.data.tracks is not None:
         parser.error(f"{args.config} trains on clips with tracks (data.tracks); this probe draws synthetic clips only")
-    torch.manual_seed(0)
     samples = held_out_samples(config, args.samples, args.queries)
     models = {}
-    for checkpoint in tqdm(args.checkpoints, desc="checkpoints"):
-        terms = sample_losses(D4RT.from_pretrained(checkpoint), samples, config)
+    for checkpoint, network in tqdm(networks.items(), desc="checkpoints"):
+        terms = sample_losses(network, samples, config)
         models[checkpoint] = {"mean": {k: float(np.mean(v)) for k, v in terms.items()}, "samples": terms}
     reference, *others = args.checkpoints
     paired = {}

@@ -80,3 +80,7 @@ def test_a_config_with_track_clips_is_refused(tmp_path, capsys):
     with pytest.raises(SystemExit):
         loss_probe.main([str(SHIPPED), "--config", str(path), "--out", str(tmp_path / "x.json")])
     assert "data.tracks" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # a checkpoint that is not there: one line, before anything is rendered
+        loss_probe.main([str(tmp_path / "missing"), "--config", str(ROOT / "configs" / "tiny-cpu.yaml"),
+                         "--out", str(tmp_path / "x.json")])
+    assert "missing" in capsys.readouterr().err

@@ -48,3 +48,6 @@ def test_one_arm_or_a_bad_override_is_refused(clip_dir, tmp_path):
     assert one.returncode == 2 and "at least two arms" in one.stderr
     bad = run_driver(config, tmp_path / "runs", ["a", "run.seed=1"], ["b", "run.seed"])
     assert bad.returncode == 2 and "KEY=VALUE" in bad.stderr
+    failing = run_driver(config, tmp_path / "runs", ["a", "run.no_such_field=1"], ["b", "run.seed=1"])
+    assert failing.returncode == 1 and "Traceback" not in failing.stderr
+    assert "exited with" in failing.stderr and "a-calibration.log" in failing.stderr
