@@ -19,35 +19,24 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
 from pathlib import Path
 
 import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from recipe_study import steps_per_second  # noqa: E402
+from recipe_study import d4rt_train, steps_per_second  # noqa: E402
 
 from d4rt.errors import UserError  # noqa: E402
 from d4rt.training.logger import read_metrics, training_seconds  # noqa: E402
 
 
 def train(config: Path, out: Path, steps: int, overrides: list[str], resume: bool = False) -> None:
-    """``d4rt train`` for ``steps`` optimiser steps in a subprocess with one torch thread; its log beside ``out``."""
-    command = [sys.executable, "-m", "d4rt", "train", "--config", str(config), "--out", str(out),
-               "--max-steps", str(steps), "--no-progress"]
+    """``d4rt train`` for ``steps`` optimiser steps with ``overrides``; its log beside ``out``."""
+    arguments = ["--config", str(config), "--out", str(out), "--max-steps", str(steps), "--no-progress"]
     for item in overrides:
-        command += ["--set", item]
-    if resume:
-        command.append("--resume")
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    out.parent.mkdir(parents=True, exist_ok=True)
-    log = out.parent / f"{out.name}.log"
-    with open(log, "a") as stream:
-        code = subprocess.run(command, env=env, stdout=stream, stderr=subprocess.STDOUT).returncode
-    if code != 0:
-        raise UserError(f"d4rt train for {out} exited with {code}; its output is in {log}")
+        arguments += ["--set", item]
+    d4rt_train(arguments + (["--resume"] if resume else []), out.parent / f"{out.name}.log", append=True)
 
 
 def finished(out: Path, steps: int) -> bool:

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from d4rt.errors import UserError
 from d4rt.training.logger import read_metrics, training_seconds
 
 # The recipe every variant starts from: the tiny preset on 8-frame clips of the pool.
@@ -99,11 +100,20 @@ def run_train(config: dict, out: Path, steps: int, validate: bool, init_from: Pa
         config["model"]["init_from"] = str(init_from)
     out.mkdir(parents=True, exist_ok=True)
     (out.parent / f"{out.name}.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    with open(out.parent / f"{out.name}.log", "w") as log:
-        subprocess.run([sys.executable, "-m", "d4rt", "train", "--config", str(out.parent / f"{out.name}.yaml"),
-                        "--out", str(out)], env=env, stdout=log, stderr=subprocess.STDOUT, check=True)
+    d4rt_train(["--config", str(out.parent / f"{out.name}.yaml"), "--out", str(out)], out.parent / f"{out.name}.log")
     return training_seconds(read_metrics(out), 1)
+
+
+def d4rt_train(arguments: list[str], log: Path, append: bool = False) -> None:
+    """``d4rt train ARGUMENTS`` in a subprocess with one torch thread, its output in ``log`` (appended to with
+    ``append``, e.g. by a resumed run); a failed run raises one line naming the log."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "a" if append else "w") as stream:
+        code = subprocess.run([sys.executable, "-m", "d4rt", "train", *arguments], env=env, stdout=stream,
+                              stderr=subprocess.STDOUT).returncode
+    if code != 0:
+        raise UserError(f"d4rt train {' '.join(arguments)} exited with {code}; its output is in {log}")
 
 
 def steps_per_second(out: Path, skip: int = 10) -> float:
