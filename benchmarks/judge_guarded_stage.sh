@@ -21,6 +21,9 @@
 # those checkpoints (step-N/ema) to step 1's candidates for S.
 # AVERAGE_WEIGHTS="0.25 0.5 0.75 1" in the environment (stage 41 on) names the w of step 2 (default 0.25 0.5 0.75);
 # w = 1 is S itself. Why: stage 39's raw checkpoints answered t_cam and its averages with the start did not.
+# Resumable (stage 41 on): every camera probe is kept per checkpoint in $J/probe-cache (the figures of one model do not
+# depend on the others probed with it; the judged checkpoints and the start are probed on the second core while
+# training runs), and a stopped judge started again skips each average, focal measurement and eval it already wrote.
 set -e
 EVERY=${CAMERA_EVERY:-3}
 export AVERAGE_WEIGHTS=${AVERAGE_WEIGHTS:-0.25 0.5 0.75}
@@ -32,17 +35,43 @@ SOUP=()
 cd /work/main
 RUN=/work/runs/ship-tiny-stage$N
 export J=/work/judge$N
+probe_once() {  # CHECKPOINT: its held-out camera probe, once (the figures of a model do not depend on the others probed)
+  local cache=$J/probe-cache/$(echo "$1" | tr / _).json
+  [ -f $cache ] && return 0
+  mkdir -p $J/probe-cache
+  python tools/camera_probe.py $1 --frames 24 --time-stride 1 --every $EVERY --out $cache.part >> $J/judge.log 2>&1
+  mv $cache.part $cache
+}
+probe_merged() {  # OUT CHECKPOINT...: one probe JSON over the given checkpoints, from their cached probes
+  local out=$1; shift
+  for c in "$@"; do probe_once $c; done
+  python - $out "$@" <<'P'
+import json, os, sys
+out, checkpoints = sys.argv[1], sys.argv[2:]
+cache = [json.load(open(f"{os.environ['J']}/probe-cache/{c.replace('/', '_')}.json")) for c in checkpoints]
+head = {k: v for k, v in cache[0].items() if k != "models"}
+assert all({k: v for k, v in c.items() if k != "models"} == head for c in cache), "probes made with other settings"
+json.dump(head | {"models": {c: p["models"][c] for c, p in zip(checkpoints, cache)}}, open(out, "w"), indent=1)
+P
+}
+focal_once() {  # measure_focal.py ARGS ... --out FILE: skipped when FILE exists (a judge resumed after a stop)
+  [ -f "${@: -1}" ] || python tools/measure_focal.py "$@" >> $J/judge.log 2>&1
+}
 if [ ${#SOUP[@]} -gt 0 ]; then
   S=("${SOUP[@]}")
   echo "S = the equal average of ${SOUP[*]} $(date -u)" >> $J/judge.log
 else
-  while pgrep -f "ship-tiny-cpu-stage$N.yaml" >/dev/null; do sleep 20; done
-  echo "training ended $(date -u)" >> $J/judge.log
   CK=""
   for s in $PROBE_STEPS; do CK="$CK $(printf "$RUN/checkpoints/step-%08d" "$s")"; done
   for s in ${PROBE_EMA:-}; do CK="$CK $(printf "$RUN/checkpoints/step-%08d/ema" "$s")"; done
-  python tools/camera_probe.py $CK --frames 24 --time-stride 1 --every $EVERY --out $J/camera-probe-24-frames.json \
-    >> $J/judge.log 2>&1
+  # While training runs, the second core probes each judged checkpoint as soon as it is written (checkpoints appear
+  # atomically) and the start, so that little is left once training ends; the rule does not change.
+  while pgrep -f "ship-tiny-cpu-stage$N.yaml" >/dev/null; do
+    for c in $J/start $CK; do [ -f $c/model.safetensors ] && probe_once $c; done
+    sleep 20
+  done
+  [ -f $J/camera-probe-24-frames.json ] || echo "training ended $(date -u)" >> $J/judge.log
+  probe_merged $J/camera-probe-24-frames.json $CK
   S=$(python -c "
 import json, os
 d=json.load(open(os.environ['J'] + '/camera-probe-24-frames.json'))
@@ -50,7 +79,8 @@ print(min(d['models'], key=lambda k: d['models'][k]['trajectory_ate']['adjacent'
   echo "S=$S $(date -u)" >> $J/judge.log
 fi
 for w in $AVERAGE_WEIGHTS; do
-  if [ "$w" = 1 ] && [ ${#S[@]} = 1 ]; then  # S itself (average_weights takes positive weights only)
+  if [ -f $J/avg-$w/model.safetensors ]; then continue  # made by an earlier, interrupted judge
+  elif [ "$w" = 1 ] && [ ${#S[@]} = 1 ]; then  # S itself (average_weights takes positive weights only)
     mkdir -p $J/avg-1 && cp ${S[0]}/config.json ${S[0]}/model.safetensors $J/avg-1/
   elif [ "$w" = 1 ]; then
     python tools/average_weights.py ${S[@]} --weights $(python -c "print(*[1] * ${#S[@]})") --out $J/avg-1 \
@@ -60,8 +90,7 @@ for w in $AVERAGE_WEIGHTS; do
       --weights $(python -c "print(1 - $w, *[$w / ${#S[@]}] * ${#S[@]})") --out $J/avg-$w >> $J/judge.log 2>&1
   fi
 done
-python tools/camera_probe.py $J/start $(for w in $AVERAGE_WEIGHTS; do echo $J/avg-$w; done) --frames 24 --time-stride 1 --every $EVERY \
-    --out $J/camera-probe-candidates-24-frames.json >> $J/judge.log 2>&1
+probe_merged $J/camera-probe-candidates-24-frames.json $J/start $(for w in $AVERAGE_WEIGHTS; do echo $J/avg-$w; done)
 W=$(python -c "
 import json, os
 J=os.environ['J']
@@ -85,10 +114,10 @@ sys.exit(0 if ok else 1)
 P
 }
 if [ "$EACH" = --focal-over-averages ]; then
-  python tools/measure_focal.py --held-out --checkpoint $J/start --out $J/focal-held-out-start.json >> $J/judge.log 2>&1
+  focal_once --held-out --checkpoint $J/start --out $J/focal-held-out-start.json
   C=none
   for w in $W; do
-    python tools/measure_focal.py --held-out --checkpoint $J/avg-$w --out $J/focal-held-out-avg-$w.json >> $J/judge.log 2>&1
+    focal_once --held-out --checkpoint $J/avg-$w --out $J/focal-held-out-avg-$w.json
     if focal_below $J/focal-held-out-avg-$w.json $J/focal-held-out-start.json synthetic-held-out \
         "held-out focal, w = $w against the start"; then C=$w; break; fi
   done
@@ -99,11 +128,11 @@ else
   W=${W%% *}  # the rule of stages 29-31: the largest w that kept the camera
   echo "w=$W $(date -u)" >> $J/judge.log
 fi
-cp -r $J/avg-$W $J/candidate
-python tools/measure_focal.py --checkpoint $J/candidate --out $J/focal.json >> $J/judge.log 2>&1
+[ -d $J/candidate ] || cp -r $J/avg-$W $J/candidate
+focal_once --checkpoint $J/candidate --out $J/focal.json
 if focal_below $J/focal.json /work/main/docs/model-card/focal.json synthetic-dynamic-v1 "focal gate against shipped"
 then echo PASS > $J/gate; else echo FAIL > $J/gate; fi
-if [ "$(cat $J/gate)" = PASS ]; then
+if [ "$(cat $J/gate)" = PASS ] && [ ! -f $J/eval.json ]; then
   d4rt eval --benchmark synthetic-dynamic-v1 --checkpoint $J/candidate --baseline oracle --baseline constant-depth \
      --out $J/eval.json --no-progress > $J/eval.md 2>> $J/judge.log
   echo "eval done $(date -u)" >> $J/judge.log
