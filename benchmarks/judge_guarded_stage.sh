@@ -1,8 +1,8 @@
 #!/bin/bash
 # The camera-guarded ship rule of stages 29 and later, as a script (each stage's config states it before it runs):
 #   bash benchmarks/judge_guarded_stage.sh N
-# Start: /work/judgeN/start (a copy of the shipped weights made before training). Run from /work/main after
-# `d4rt train --config configs/ship-tiny-cpu-stageN.yaml --out /work/runs/ship-tiny-stageN` has been started.
+# Start: /work/judgeN/start (a copy of the shipped weights made before training). Run from /work/main beside
+# `d4rt train --config configs/ship-tiny-cpu-stageN.yaml --out /work/runs/ship-tiny-stageN` (started before or after).
 # 1. The kept raw checkpoints of steps 2,500-4,000 (PROBE_STEPS) go through the held-out camera probe; the lowest is step S.
 # 2. The start and (1 - w) x start + w x S for w = 0.25, 0.5, 0.75 go through the same probe; the candidate is the
 #    largest w not worse than the start (none: stop).
@@ -66,7 +66,10 @@ else
   for s in ${PROBE_EMA:-}; do CK="$CK $(printf "$RUN/checkpoints/step-%08d/ema" "$s")"; done
   # While training runs, the second core probes each judged checkpoint as soon as it is written (checkpoints appear
   # atomically) and the start, so that little is left once training ends; the rule does not change.
-  while pgrep -f "ship-tiny-cpu-stage$N.yaml" >/dev/null; do
+  # Training has ended when every judged checkpoint is written: a run paused by SIGTERM (to run tests alone) and
+  # resumed later is waited for, not judged early.
+  all_written() { for c in $CK; do [ -f $c/model.safetensors ] || return 1; done; }
+  until all_written; do
     for c in $J/start $CK; do [ -f $c/model.safetensors ] && probe_once $c; done
     sleep 20
   done
