@@ -13,7 +13,8 @@ The samples are ``config``'s training dataset (the same clip lengths, sizes, sce
 sampler) with its seed replaced by 6,000,000 (a stream no training stage, probe or benchmark draws), its first
 ``--samples`` indices, each with ``--queries`` queries (the same for every checkpoint, whatever a run trained
 with). Every checkpoint answers them in fp32 without gradients; the terms are ``d4rt_loss``'s under the config's
-loss settings (``3d`` is the paper's L3D).
+loss settings (``3d`` is the paper's L3D), plus ``motion_terms``' (``2d_moved``, ``2d_still``, ``2d_slope``: does the
+model find a pixel in another frame?).
 
 Writes JSON: per checkpoint the mean of every term over the samples and the per-sample values; and for every
 checkpoint after the first, per term, the paired difference against the first (``tools/compare_evals.py``'s
@@ -43,7 +44,8 @@ from d4rt.training.losses import d4rt_loss  # noqa: E402
 
 HELD_OUT_SEED = 6_000_000
 # The terms reported in the table (all terms are in the JSON).
-SHOWN = ("3d", "2d", "pose_rotation", "pose_translation", "confidence_mean")
+HIGHER_IS_BETTER = ("2d_slope",)
+SHOWN = ("3d", "2d", "2d_moved", "2d_still", "2d_slope", "pose_rotation", "pose_translation", "confidence_mean")
 
 
 def held_out_samples(config: TrainConfig, samples: int, queries: int) -> list[dict[str, torch.Tensor]]:
@@ -63,9 +65,34 @@ def sample_losses(model: D4RT, samples: list[dict[str, torch.Tensor]], config: T
     for sample in samples:
         batch = {k: v[None] for k, v in sample.items()}
         out = model(batch["video"], batch["queries"], batch["aspect_ratio"])
-        for key, value in d4rt_loss(out, batch, config.loss)[1].items():
+        for key, value in (d4rt_loss(out, batch, config.loss)[1] | motion_terms(out["uv"][0], sample)).items():
             terms.setdefault(key, []).append(float(value))
     return terms
+
+
+def motion_terms(uv: torch.Tensor, sample: dict[str, torch.Tensor]) -> dict[str, float]:
+    """How far the model moves a pixel between frames, against how far it truly moves.
+
+    uv: ``(N, 2)`` the model's (u, v) in frame t_tgt for ``sample``'s queries. Over the queries with t_tgt != t_src
+    whose true (u, v) in frame t_tgt lies inside the image (the 2D term's far-outside targets dominate its mean):
+    ``2d_moved`` the median L1 error of the model's (u, v); ``2d_still`` the same for answering the query's own
+    (u, v) (no motion; it does not depend on the model); ``2d_slope`` the least-squares slope of the model's
+    displacement (uv - query uv) on the true one (1: moves pixels as far as they move; 0: does not move them).
+    NaN where a sample has no such query. Why: the 2D term's mean says little about whether the model finds a
+    pixel in another frame (correspondence), which depth from parallax, 3D tracks and the camera all need.
+    """
+    queries, target = sample["queries"], sample["uv"]
+    inside = ((target >= 0) & (target <= 1)).all(-1)
+    chosen = sample["uv_valid"].bool() & sample["valid"].bool() & inside & (queries[:, 2] != queries[:, 3])
+    if not chosen.any():
+        return {"2d_moved": float("nan"), "2d_still": float("nan"), "2d_slope": float("nan")}
+    start, true, predicted = queries[chosen, :2], target[chosen], uv[chosen]
+    true_shift, shift = true - start, predicted - start
+    return {
+        "2d_moved": float((predicted - true).abs().sum(-1).median()),
+        "2d_still": float(true_shift.abs().sum(-1).median()),
+        "2d_slope": float((shift * true_shift).sum() / (true_shift * true_shift).sum().clamp_min(1e-12)),
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -91,15 +118,17 @@ def main(argv: list[str] | None = None) -> None:
     models = {}
     for checkpoint, network in tqdm(networks.items(), desc="checkpoints"):
         terms = sample_losses(network, samples, config)
-        models[checkpoint] = {"mean": {k: float(np.mean(v)) for k, v in terms.items()}, "samples": terms}
+        models[checkpoint] = {"mean": {k: float(np.nanmean(v)) for k, v in terms.items()}, "samples": terms}
     reference, *others = args.checkpoints
     paired = {}
     for checkpoint in others:
         paired[checkpoint] = {}
         for key, values in models[checkpoint]["samples"].items():
             if key in models[reference]["samples"] and key != "confidence_mean":
-                base = np.array(models[reference]["samples"][key])
-                paired[checkpoint][key] = paired_bootstrap(base, np.array(values), np.ones(len(values)))
+                base, new = np.array(models[reference]["samples"][key]), np.array(values)
+                both = ~(np.isnan(base) | np.isnan(new))  # a sample without moved queries has no 2d_* terms
+                paired[checkpoint][key] = paired_bootstrap(base[both], new[both], np.ones(int(both.sum())),
+                                                           lower_is_better=key not in HIGHER_IS_BETTER)
     result = {"config": args.config, "seed": HELD_OUT_SEED, "samples": args.samples, "queries": args.queries,
               "reference": reference, "models": models, "paired_against_reference": paired}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

@@ -58,6 +58,7 @@ def test_identical_weights_compare_equal_and_terms_are_the_loss(config_path, tmp
     assert paired["difference"] == 0.0 and paired["low"] == 0.0 and paired["high"] == 0.0
     assert paired["new_better_on"] == 0 and paired["sequences"] == 3
     assert "pose_rotation" in result["models"][str(SHIPPED)]["mean"]  # the config's pose weight is kept
+    assert result["paired_against_reference"][str(copy)]["2d_slope"]["difference"] == 0.0
     # The per-sample L3D is d4rt_loss's on the same sample.
     config = TrainConfig.load(config_path)
     sample = loss_probe.held_out_samples(config, 1, 48)[0]
@@ -70,6 +71,23 @@ def test_identical_weights_compare_equal_and_terms_are_the_loss(config_path, tmp
     assert values[0] == pytest.approx(expected, rel=1e-5)
     assert result["models"][str(SHIPPED)]["mean"]["3d"] == pytest.approx(np.mean(values))
     assert "| reference |" in capsys.readouterr().out
+
+
+def test_motion_terms_measure_how_far_pixels_move():
+    # Four queries (u, v, t_src, t_tgt, t_cam): two moved inside the image, one moved outside it, one in its own frame.
+    queries = torch.tensor([[0.2, 0.2, 0, 3, 3], [0.5, 0.5, 1, 0, 0], [0.9, 0.9, 0, 2, 2], [0.4, 0.4, 2, 2, 2]])
+    target = torch.tensor([[0.3, 0.2], [0.5, 0.9], [1.3, 0.9], [0.4, 0.4]])
+    sample = {"queries": queries, "uv": target, "uv_valid": torch.ones(4, dtype=torch.bool),
+              "valid": torch.ones(4, dtype=torch.bool)}
+    exact = loss_probe.motion_terms(target, sample)
+    assert exact["2d_moved"] == 0.0 and exact["2d_slope"] == pytest.approx(1.0)
+    assert exact["2d_still"] == pytest.approx(0.1)  # the median of 0.1 and 0.4 (torch's lower median)
+    still = loss_probe.motion_terms(queries[:, :2], sample)
+    assert still["2d_moved"] == pytest.approx(exact["2d_still"]) and still["2d_slope"] == 0.0
+    half = loss_probe.motion_terms((queries[:, :2] + target) / 2, sample)
+    assert half["2d_slope"] == pytest.approx(0.5) and half["2d_moved"] == pytest.approx(0.05)
+    sample["valid"] = torch.tensor([False, False, True, True])  # nothing moved inside the image is left
+    assert all(np.isnan(v) for v in loss_probe.motion_terms(target, sample).values())
 
 
 def test_a_config_with_track_clips_is_refused(tmp_path, capsys):
