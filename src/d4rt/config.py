@@ -93,6 +93,11 @@ class D4RTConfig:
             approximates poorly; every tiny model trained on the CPU without it ignored t_cam entirely
             (docs/training.md). Its layer is initialised like every other linear layer: started at zero
             (the identity pose) it stayed near zero and passed no gradient back to the encoder.
+        uv_residual: the 2D head answers the displacement from the query's own (u, v): ``uv = (u, v) + head``
+            (not in paper, which leaves the parameterisation open). Why: the plain head must rebuild (u, v)
+            from the Fourier features before it can move it; stage 41's weights answered a pixel's own frame
+            1.3 pixels off and moved pixels no better than leaving them where they were (docs/training.md,
+            stage 42), so correspondence never showed in the 2D term's gradient.
 
     Inference default
         pose_pairs: the camera recipe's pairing that ``Reconstruction.from_model`` uses for this model when the
@@ -135,6 +140,7 @@ class D4RTConfig:
     decoder_mlp_dim: int = 768
     confidence_activation: str = "softplus"
     relative_pose_head: bool = False
+    uv_residual: bool = False
     # inference default
     pose_pairs: str = "first"
     # runtime
@@ -187,7 +193,7 @@ class D4RTConfig:
             value = getattr(self, name)
             if not _is_number(value) or not value > 0:
                 raise UserError(f"config field {name} must be a positive number, got {value!r}")
-        for name in ("gradient_checkpointing", "cache_scene_kv", "relative_pose_head"):
+        for name in ("gradient_checkpointing", "cache_scene_kv", "relative_pose_head", "uv_residual"):
             if not isinstance(getattr(self, name), bool):
                 raise UserError(f"config field {name} must be true or false, got {getattr(self, name)!r}")
         check_pose_pairs(self.pose_pairs, "config pose_pairs")

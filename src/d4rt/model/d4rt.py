@@ -82,7 +82,10 @@ class D4RT(nn.Module):
         ``share_sources``: embed each run of equal (u, v, t_src) once (see :class:`QueryEmbedding`)."""
         tokens = self.query_embedding(queries, patch_video, share_sources)
         same_camera = queries[..., 2].round() == queries[..., 4].round() if self.config.relative_pose_head else None
-        return self.decoder(tokens, scene_kv, same_camera)
+        out = self.decoder(tokens, scene_kv, same_camera)
+        if self.config.uv_residual:  # the head answers the displacement (config uv_residual)
+            out["uv"] = out["uv"] + queries[..., :2].float()
+        return out
 
     # ------------------------------------------------------------------------------------ training
     def forward(

@@ -132,14 +132,18 @@ class Trainer:
             pretrained = D4RT.from_pretrained(spec.init_from)
             state = pretrained.state_dict()
             has_head, wants_head = pretrained.config.relative_pose_head, self.model_config.relative_pose_head
-            # The one difference allowed: adding the relative-pose head (never dropping a trained one). The camera
-            # pairing is an inference default, not architecture: the new model keeps the one its config names.
-            same = pretrained.config.replace(relative_pose_head=wants_head, pose_pairs=self.model_config.pose_pairs)
-            if same != self.model_config or has_head > wants_head:
+            had_residual, wants_residual = pretrained.config.uv_residual, self.model_config.uv_residual
+            # The differences allowed: adding the relative-pose head and turning the 2D head residual (never undoing
+            # either). The camera pairing is an inference default, not architecture: the new model keeps its own.
+            same = pretrained.config.replace(relative_pose_head=wants_head, uv_residual=wants_residual,
+                                             pose_pairs=self.model_config.pose_pairs)
+            if same != self.model_config or has_head > wants_head or had_residual > wants_residual:
                 raise UserError(f"model.init_from {spec.init_from} has a different model config than model.preset "
                                 f"{spec.preset!r} with its overrides")
             if wants_head and not has_head:  # the one part the checkpoint lacks keeps its fresh (seeded) initialisation
                 state.update({k: v for k, v in model.state_dict().items() if k.startswith("decoder.heads.relative_pose.")})
+            if wants_residual and not had_residual:  # a head trained on absolute (u, v) starts at zero: no motion
+                state.update({k: torch.zeros_like(v) for k, v in state.items() if k.startswith("decoder.heads.heads.uv.")})
             model.load_state_dict(state, strict=True)
         if spec.videomae is not None:
             from d4rt.model.videomae import load_videomae_v2
