@@ -46,6 +46,12 @@ probe_once() {  # CHECKPOINT: its held-out camera probe, once (the figures of a 
   python tools/camera_probe.py $1 --frames 24 --time-stride 1 --every $EVERY --out $cache.part >> $J/judge.log 2>&1
   mv $cache.part $cache
 }
+reuse_probe() {  # FROM TO: TO is a byte copy of FROM; its cached probe is FROM's under TO's name (nothing to run)
+  local from=$J/probe-cache/$(echo "$1" | tr / _).json to=$J/probe-cache/$(echo "$2" | tr / _).json
+  [ -f $from ] && [ ! -f $to ] || return 0
+  python -c "import json, sys; d = json.load(open(sys.argv[1])); d['models'] = {sys.argv[4]: d['models'][sys.argv[3]]}
+json.dump(d, open(sys.argv[2], 'w'), indent=1)" $from $to "$1" "$2"
+}
 probe_merged() {  # OUT CHECKPOINT...: one probe JSON over the given checkpoints, from their cached probes
   local out=$1; shift
   for c in "$@"; do probe_once $c; done
@@ -88,7 +94,7 @@ fi
 for w in $AVERAGE_WEIGHTS; do
   if [ -f $J/avg-$w/model.safetensors ]; then continue  # made by an earlier, interrupted judge
   elif [ "$w" = 1 ] && [ ${#S[@]} = 1 ]; then  # S itself (average_weights takes positive weights only)
-    mkdir -p $J/avg-1 && cp ${S[0]}/config.json ${S[0]}/model.safetensors $J/avg-1/
+    mkdir -p $J/avg-1 && cp ${S[0]}/config.json ${S[0]}/model.safetensors $J/avg-1/ && reuse_probe ${S[0]} $J/avg-1
   elif [ "$w" = 1 ]; then
     python tools/average_weights.py ${S[@]} --weights $(python -c "print(*[1] * ${#S[@]})") --out $J/avg-1 \
       >> $J/judge.log 2>&1
