@@ -55,3 +55,19 @@ def _random_video_fixture():
 @pytest.fixture(name="random_queries")
 def _random_queries_fixture():
     return random_queries
+
+
+@pytest.fixture
+def build_from_checkpoint():
+    """``build(init_from, **overrides) -> D4RT``: the model a CPU trainer builds from ``model.init_from`` with the
+    tiny preset and ``overrides`` (where a checkpoint may differ from the config it is trained on)."""
+    from d4rt.training.config import TrainConfig
+    from d4rt.training.distributed import DistributedContext
+    from d4rt.training.trainer import Trainer
+
+    def build(init_from, **overrides) -> D4RT:
+        config = TrainConfig.from_dict({"model": {"preset": "tiny", "overrides": overrides, "init_from": str(init_from)},
+                                        "data": {"dataset": {"size": [64, 64]}}, "run": {"device": "cpu"}})
+        return Trainer(config, "unused", DistributedContext.from_environment("cpu"))._build_model()
+
+    return build

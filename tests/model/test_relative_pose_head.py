@@ -13,9 +13,6 @@ from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
 from d4rt.model import D4RT
 from d4rt.model.decoder import _IDENTITY_6D, rotation_from_6d
-from d4rt.training.config import TrainConfig
-from d4rt.training.distributed import DistributedContext
-from d4rt.training.trainer import Trainer
 
 POSE_KEYS = ("decoder.heads.relative_pose.weight", "decoder.heads.relative_pose.bias")
 
@@ -107,16 +104,10 @@ def test_head_keeps_queries_independent():
     assert np.allclose(np.asarray(together)[::7], alone, atol=1e-5)
 
 
-def _trainer(init_from, **overrides) -> Trainer:
-    config = TrainConfig.from_dict({"model": {"preset": "tiny", "overrides": overrides, "init_from": str(init_from)},
-                                    "data": {"dataset": {"size": [64, 64]}}, "run": {"device": "cpu"}})
-    return Trainer(config, "unused", DistributedContext.from_environment("cpu"))
-
-
-def test_init_from_adds_the_head_to_a_checkpoint_without_it(tmp_path):
+def test_init_from_adds_the_head_to_a_checkpoint_without_it(tmp_path, build_from_checkpoint):
     base = make_model()
     base.save_pretrained(tmp_path / "plain")
-    model = _trainer(tmp_path / "plain", relative_pose_head=True)._build_model()
+    model = build_from_checkpoint(tmp_path / "plain", relative_pose_head=True)
     for key, value in base.state_dict().items():
         assert torch.equal(model.state_dict()[key], value), key
     # The added layer is initialised as a fresh model's (not zero: a zero layer passes no gradient upstream).
@@ -124,7 +115,7 @@ def test_init_from_adds_the_head_to_a_checkpoint_without_it(tmp_path):
     assert 0.01 < float(weight.std()) < 0.03 and not model.state_dict()[POSE_KEYS[1]].any()
 
 
-def test_init_from_refuses_to_drop_a_trained_head(tmp_path):
+def test_init_from_refuses_to_drop_a_trained_head(tmp_path, build_from_checkpoint):
     make_model(relative_pose_head=True).save_pretrained(tmp_path / "headed")
     with pytest.raises(UserError, match="different model config"):
-        _trainer(tmp_path / "headed")._build_model()
+        build_from_checkpoint(tmp_path / "headed")

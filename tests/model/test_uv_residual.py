@@ -9,9 +9,6 @@ import torch
 from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
 from d4rt.model import D4RT
-from d4rt.training.config import TrainConfig
-from d4rt.training.distributed import DistributedContext
-from d4rt.training.trainer import Trainer
 
 UV_KEYS = ("decoder.heads.heads.uv.weight", "decoder.heads.heads.uv.bias")
 
@@ -51,16 +48,10 @@ def test_a_zero_residual_head_answers_no_motion_through_the_inference_path():
     assert torch.allclose(torch.as_tensor(answer["uv"]), queries[:, :2], atol=1e-6)
 
 
-def _trainer(init_from, **overrides) -> Trainer:
-    config = TrainConfig.from_dict({"model": {"preset": "tiny", "overrides": overrides, "init_from": str(init_from)},
-                                    "data": {"dataset": {"size": [64, 64]}}, "run": {"device": "cpu"}})
-    return Trainer(config, "unused", DistributedContext.from_environment("cpu"))
-
-
-def test_init_from_turns_a_plain_head_residual_starting_from_no_motion(tmp_path):
+def test_init_from_turns_a_plain_head_residual_starting_from_no_motion(tmp_path, build_from_checkpoint):
     base = make_model()
     base.save_pretrained(tmp_path / "plain")
-    model = _trainer(tmp_path / "plain", uv_residual=True)._build_model()
+    model = build_from_checkpoint(tmp_path / "plain", uv_residual=True)
     for key, value in base.state_dict().items():
         if key in UV_KEYS:  # a head trained on absolute (u, v) would double it: it starts at zero
             assert not model.state_dict()[key].any(), key
@@ -68,10 +59,10 @@ def test_init_from_turns_a_plain_head_residual_starting_from_no_motion(tmp_path)
             assert torch.equal(model.state_dict()[key], value), key
 
 
-def test_init_from_refuses_to_turn_a_residual_head_plain(tmp_path):
+def test_init_from_refuses_to_turn_a_residual_head_plain(tmp_path, build_from_checkpoint):
     make_model(uv_residual=True).save_pretrained(tmp_path / "residual")
     with pytest.raises(UserError, match="different model config"):
-        _trainer(tmp_path / "residual")._build_model()
+        build_from_checkpoint(tmp_path / "residual")
     loaded = D4RT.from_pretrained(tmp_path / "residual")  # the setting travels with the checkpoint
     assert loaded.config.uv_residual is True
 
