@@ -97,7 +97,8 @@ class D4RTConfig:
             (not in paper, which leaves the parameterisation open). Why: the plain head must rebuild (u, v)
             from the Fourier features before it can move it; stage 41's weights answered a pixel's own frame
             1.3 pixels off and moved pixels no better than leaving them where they were (docs/training.md,
-            stage 42), so correspondence never showed in the 2D term's gradient.
+            stage 42), so correspondence never showed in the 2D term's gradient. Measured (stage 43): no better
+            than the plain head over 1,000 steps, so off in every shipped config; kept for longer or larger runs.
 
     Inference default
         pose_pairs: the camera recipe's pairing that ``Reconstruction.from_model`` uses for this model when the
