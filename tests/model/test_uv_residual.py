@@ -13,23 +13,11 @@ from d4rt.model import D4RT
 UV_KEYS = ("decoder.heads.heads.uv.weight", "decoder.heads.heads.uv.bias")
 
 
-def make_model(**overrides) -> D4RT:
-    torch.manual_seed(4321)
-    return D4RT(D4RTConfig.preset("tiny", **overrides)).eval()
-
-
-def inputs(frames: int = 4, n: int = 40):
-    g = torch.Generator().manual_seed(7)
-    video = torch.rand(1, frames, 64, 64, 3, generator=g)
-    queries = torch.cat([torch.rand(1, n, 2, generator=g), torch.randint(0, frames, (1, n, 3), generator=g).float()], -1)
-    return video, queries, torch.ones(1)
-
-
-def test_the_residual_head_adds_the_query_position_and_nothing_else():
+def test_the_residual_head_adds_the_query_position_and_nothing_else(make_model, random_video, random_queries):
     plain = make_model()
     residual = D4RT(plain.config.replace(uv_residual=True)).eval()
     residual.load_state_dict(plain.state_dict(), strict=True)  # same parameters: only the parameterisation differs
-    video, queries, aspect = inputs()
+    video, queries, aspect = random_video(4, 64, 64, dtype=torch.float32)[None], random_queries(40, 4)[None], torch.ones(1)
     with torch.no_grad():
         a, b = plain(video, queries, aspect), residual(video, queries, aspect)
     assert torch.allclose(b["uv"], a["uv"] + queries[..., :2], atol=1e-6)
@@ -37,18 +25,17 @@ def test_the_residual_head_adds_the_query_position_and_nothing_else():
         assert torch.equal(a[key], b[key]), key
 
 
-def test_a_zero_residual_head_answers_no_motion_through_the_inference_path():
+def test_a_zero_residual_head_answers_no_motion_through_the_inference_path(make_model, random_video, random_queries):
     model = make_model(uv_residual=True)
     with torch.no_grad():
         for key in UV_KEYS:
             model.state_dict()[key].zero_()
-    video = torch.randint(0, 256, (4, 64, 64, 3), generator=torch.Generator().manual_seed(0), dtype=torch.uint8)
-    queries = inputs()[1][0]
-    answer = model.encode(video).query(queries)
+    queries = random_queries(40, 4)
+    answer = model.encode(random_video(4, 64, 64)).query(queries)
     assert torch.allclose(torch.as_tensor(answer["uv"]), queries[:, :2], atol=1e-6)
 
 
-def test_init_from_turns_a_plain_head_residual_starting_from_no_motion(tmp_path, build_from_checkpoint):
+def test_init_from_turns_a_plain_head_residual_starting_from_no_motion(tmp_path, build_from_checkpoint, make_model):
     base = make_model()
     base.save_pretrained(tmp_path / "plain")
     model = build_from_checkpoint(tmp_path / "plain", uv_residual=True)
@@ -59,7 +46,7 @@ def test_init_from_turns_a_plain_head_residual_starting_from_no_motion(tmp_path,
             assert torch.equal(model.state_dict()[key], value), key
 
 
-def test_init_from_refuses_to_turn_a_residual_head_plain(tmp_path, build_from_checkpoint):
+def test_init_from_refuses_to_turn_a_residual_head_plain(tmp_path, build_from_checkpoint, make_model):
     make_model(uv_residual=True).save_pretrained(tmp_path / "residual")
     with pytest.raises(UserError, match="different model config"):
         build_from_checkpoint(tmp_path / "residual")
