@@ -9,7 +9,8 @@
 #   bash benchmarks/gpu_session.sh finish   # waits for the last step, runs the giant bench, returns everything
 # A 15-minute lease (the machine's start counted) has room for two calls instead (docs/training.md):
 #   TRAIN_S=300 PART_A_S=110 CALL_S=570 bash benchmarks/gpu_session.sh lease   # train, snapshot, start the bench
-#   (PROBE_S=60 first profiles one GPU step, batch 1, into probe.txt; INIT_FROM=DIR continues from a model directory)
+#   (PROBE_S=60 first profiles one GPU step, batch 1, into probe.txt; INIT_FROM=DIR continues from a model directory;
+#   BENCH=0 skips the bench, for a lease that only trains)
 #   bash benchmarks/gpu_session.sh collect  # only if the bench was still running: waits WAIT_S (150 s) for it
 # Each call writes into $OUT: weights.tar.part-aa, -ab, ... (model.safetensors, config.json, metrics.jsonl and
 # train_config.yaml of the run, split under the tool's 16 MiB per file), progress.txt, and at the end bench-gpu.json.
@@ -165,6 +166,7 @@ P
   sleep_until $(( TRAIN_S + 20 ))
   stop_run
   snapshot "$(elapsed)"
+  if [ "${BENCH:-1}" = 0 ]; then exit 0; fi  # BENCH=0: the whole lease trains (the bench's figures already taken)
   setsid nohup python3 -m d4rt bench --preset giant --device cuda --dtype bf16 --frames 48 --size 256 \
     --tolerance ${BENCH_TOLERANCE:-0.05} --no-progress --json $G/bench-gpu.json > $G/bench-gpu.txt 2>&1 < /dev/null &
   echo $! > $G/bench.pid
