@@ -1,0 +1,83 @@
+"""Grow a trained model deeper without changing what it computes (function-preserving deepening).
+
+Why (issue 14): the tiny model trained on this CPU stopped learning (48,000 clips lowered its held-out 3D loss
+by under 2%, docs/training.md stage 41). Whether that is the model's capacity is answered by giving it more
+blocks and training on; starting the larger model from scratch would throw away days of CPU training.
+
+A pre-norm residual block ``x + f(norm(x))`` whose output projections (``attn.proj``, ``mlp.fc2``) are zero is
+the identity, so new blocks with zeroed output projections and freshly initialised everything else leave the
+model's outputs exactly as they were; their output projections still receive gradients, so they start learning
+at the first step (the same start as ReZero or GPT-2's scaled residual initialisation, taken to zero).
+
+Where the new blocks go: the encoder alternates frame-local and global blocks in groups of
+``global_attention_every`` (the last block of a group is global), so it grows by whole groups and every old
+group keeps its kind of attention; the old groups are spread evenly over the new depth (first and last kept in
+place) with the new groups between them. Decoder blocks are all alike and are spread the same way.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from d4rt.errors import UserError
+from d4rt.model.d4rt import D4RT
+
+
+def spread(old: int, new: int) -> list[int]:
+    """Positions in ``range(new)`` for ``old`` items, evenly spread, first and last at the ends; ``old <= new``."""
+    if old == 1:
+        return [0]
+    return [round(k * (new - 1) / (old - 1)) for k in range(old)]
+
+
+def _zero_outputs(block: torch.nn.Module) -> None:
+    """Make a pre-norm residual block the identity: zero its attention and MLP output projections."""
+    for layer in (block.attn.proj, block.mlp.fc2):
+        torch.nn.init.zeros_(layer.weight)
+        torch.nn.init.zeros_(layer.bias)
+
+
+def _move_blocks(state: dict[str, torch.Tensor], prefix: str, mapping: dict[int, int]) -> dict[str, torch.Tensor]:
+    """The tensors of ``state`` under ``prefix`` (``encoder.blocks.``), block index ``i`` renamed ``mapping[i]``."""
+    moved = {}
+    for key, value in state.items():
+        if key.startswith(prefix):
+            index, rest = key[len(prefix):].split(".", 1)
+            moved[f"{prefix}{mapping[int(index)]}.{rest}"] = value
+    return moved
+
+
+def deepen(model: D4RT, encoder_depth: int | None = None, decoder_depth: int | None = None,
+           seed: int = 0) -> D4RT:
+    """A copy of ``model`` with ``encoder_depth`` / ``decoder_depth`` blocks (None keeps a depth) that computes
+    the same outputs; the new blocks are seeded with ``seed`` and zeroed at their outputs.
+
+    Raises :class:`UserError` if a depth shrinks or the encoder does not grow by whole local/global groups.
+    """
+    config = model.config
+    encoder_depth = config.encoder_depth if encoder_depth is None else encoder_depth
+    decoder_depth = config.decoder_depth if decoder_depth is None else decoder_depth
+    group = config.global_attention_every
+    if encoder_depth < config.encoder_depth or decoder_depth < config.decoder_depth:
+        raise UserError(f"deepen grows a model: depths {config.encoder_depth}/{config.decoder_depth} cannot become "
+                        f"{encoder_depth}/{decoder_depth}")
+    if config.encoder_depth % group or encoder_depth % group:
+        raise UserError(f"the encoder grows by whole groups of global_attention_every = {group} blocks: "
+                        f"{config.encoder_depth} -> {encoder_depth} does not")
+    grown_config = config.replace(encoder_depth=encoder_depth, decoder_depth=decoder_depth)
+    torch.manual_seed(seed)
+    grown = D4RT(grown_config)
+    groups = spread(config.encoder_depth // group, encoder_depth // group)
+    encoder_map = {g * group + j: new * group + j for g, new in enumerate(groups) for j in range(group)}
+    decoder_map = dict(enumerate(spread(config.decoder_depth, decoder_depth)))
+    for blocks, mapping in ((grown.encoder.blocks, encoder_map), (grown.decoder.blocks, decoder_map)):
+        for index, block in enumerate(blocks):
+            if index not in mapping.values():
+                _zero_outputs(block)
+    state = grown.state_dict()
+    old = model.state_dict()
+    state.update({k: v for k, v in old.items() if not k.startswith(("encoder.blocks.", "decoder.blocks."))})
+    state.update(_move_blocks(old, "encoder.blocks.", encoder_map))
+    state.update(_move_blocks(old, "decoder.blocks.", decoder_map))
+    grown.load_state_dict(state, strict=True)
+    return grown.train(model.training)

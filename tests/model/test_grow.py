@@ -1,0 +1,84 @@
+"""Function-preserving deepening (``d4rt.model.grow.deepen``): a grown model answers exactly as the model it grew
+from, keeps every old block's kind of attention, and its new blocks learn from the first step."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from d4rt.errors import UserError
+from d4rt.model.grow import deepen, spread
+
+
+def _outputs(model, video, queries):
+    with torch.no_grad():
+        return model(video, queries, torch.full((1,), 1.5))
+
+
+def test_a_deepened_model_answers_every_output_as_before(make_model, random_video, random_queries):
+    # A relative-pose head and non-square aspect: every part of the forward pass is exercised.
+    base = make_model(relative_pose_head=True)
+    with torch.no_grad():  # trained-looking weights: fresh ones have near-zero outputs that hide a misplaced block
+        for parameter in base.parameters():
+            parameter.add_(0.05 * torch.randn_like(parameter))
+    grown = deepen(base, encoder_depth=10, decoder_depth=6, seed=3).eval()
+    assert (grown.config.encoder_depth, grown.config.decoder_depth) == (10, 6)
+    video, queries = random_video(6, 64, 64, dtype=torch.float32)[None], random_queries(50, 6)[None]
+    before, after = _outputs(base, video, queries), _outputs(grown, video, queries)
+    for key, value in before.items():
+        assert torch.allclose(after[key], value, atol=1e-5, rtol=1e-5), key
+    # ... and the check is not vacuous: a grown model whose old blocks are reordered answers differently.
+    shuffled = grown.state_dict()
+    for name in ("attn.proj.weight", "mlp.fc2.weight"):
+        shuffled[f"encoder.blocks.0.{name}"], shuffled[f"encoder.blocks.4.{name}"] = (
+            shuffled[f"encoder.blocks.4.{name}"].clone(), shuffled[f"encoder.blocks.0.{name}"].clone())
+    grown.load_state_dict(shuffled)
+    assert not torch.allclose(_outputs(grown, video, queries)["points"], before["points"], atol=1e-3)
+
+
+def test_old_blocks_keep_their_kind_of_attention(make_model):
+    base = make_model()
+    grown = deepen(base, encoder_depth=10)
+    # Old groups (local, global) sit at groups 0, 2, 4 of the new encoder; every global block stays global.
+    for old_index, new_index in ((0, 0), (1, 1), (2, 4), (3, 5), (4, 8), (5, 9)):
+        assert base.encoder.is_global(old_index) == grown.encoder.is_global(new_index)
+        assert torch.equal(base.encoder.blocks[old_index].mlp.fc1.weight, grown.encoder.blocks[new_index].mlp.fc1.weight)
+    for new_index in (2, 3, 6, 7):
+        assert not grown.encoder.blocks[new_index].attn.proj.weight.any()
+        assert grown.encoder.blocks[new_index].attn.qkv.weight.std() > 0.01  # fresh, not zero: it can learn
+
+
+def test_new_blocks_receive_gradients_from_the_first_step(make_model, random_video, random_queries):
+    grown = deepen(make_model(), encoder_depth=8, decoder_depth=5).train()
+    out = grown(random_video(4, 64, 64, dtype=torch.float32)[None], random_queries(20, 4)[None], torch.ones(1))
+    out["points"].square().mean().backward()
+    # 3 groups -> 4: old groups at 0, 2, 3, so blocks 2 (local) and 3 (global) are new; decoder block 1 or 2 is new.
+    assert grown.encoder.blocks[2].mlp.fc2.weight.grad.abs().sum() > 0
+    assert grown.encoder.blocks[3].attn.proj.weight.grad.abs().sum() > 0
+    new_decoder = set(range(5)) - set(spread(4, 5))
+    assert all(grown.decoder.blocks[i].mlp.fc2.weight.grad.abs().sum() > 0 for i in new_decoder)
+
+
+def test_spread_keeps_the_ends_and_the_order():
+    assert spread(3, 5) == [0, 2, 4]
+    assert spread(4, 6) == [0, 2, 3, 5]
+    assert spread(1, 4) == [0]
+    assert spread(4, 4) == [0, 1, 2, 3]
+
+
+def test_deepen_refuses_to_shrink_or_to_break_the_attention_pattern(make_model):
+    base = make_model()
+    with pytest.raises(UserError, match="grows a model"):
+        deepen(base, encoder_depth=4)
+    with pytest.raises(UserError, match="whole groups"):
+        deepen(base, encoder_depth=9)
+
+
+def test_a_deepened_checkpoint_is_what_init_from_loads_with_the_new_depths(tmp_path, make_model, build_from_checkpoint):
+    grown = deepen(make_model(), encoder_depth=8, decoder_depth=6)
+    grown.save_pretrained(tmp_path / "grown")
+    model = build_from_checkpoint(tmp_path / "grown", encoder_depth=8, decoder_depth=6)
+    for key, value in grown.state_dict().items():
+        assert torch.equal(model.state_dict()[key], value), key
+    with pytest.raises(UserError, match="different model config"):
+        build_from_checkpoint(tmp_path / "grown")  # the tiny preset's depths: refused, never loaded loosely
