@@ -10,7 +10,8 @@ idle one: first ``--calibration-steps`` steps in ``RUNS/NAME-calibration`` to me
 clips per second after the first logging window), then ``minutes x steps/s`` optimiser steps from the config's
 ``model.init_from`` in ``RUNS/NAME`` with the cosine's ``optim.decay_steps`` set to that count, so that each
 arm's learning-rate schedule ends with its budget. An arm whose run is there unfinished is resumed (``--resume``);
-a finished one is kept. Writes ``RUNS/arms.json`` (per arm: the overrides, calibrated steps/s, steps, the seconds
+a finished one is kept. An arm's ``threads=N`` (not a config key) runs it with N torch threads (default 1), e.g. an
+arm whose loader has less to do (``data.dataset.echo=2``) giving the model the core it frees. Writes ``RUNS/arms.json`` (per arm: the overrides, calibrated steps/s, steps, the seconds
 actually spent in optimiser steps) and prints a table. Judge the final weights (``RUNS/NAME``) afterwards, with
 held-out probes (``tools/loss_probe.py``, ``tools/measure_focal.py --held-out``, ``tools/depth_probe.py``).
 """
@@ -32,11 +33,17 @@ from d4rt.training.logger import read_metrics, training_seconds  # noqa: E402
 
 
 def train(config: Path, out: Path, steps: int, overrides: list[str], resume: bool = False) -> None:
-    """``d4rt train`` for ``steps`` optimiser steps with ``overrides``; its log beside ``out``."""
+    """``d4rt train`` for ``steps`` optimiser steps with ``overrides`` (``threads=N`` among them sets its torch
+    threads); its log beside ``out``."""
     arguments = ["--config", str(config), "--out", str(out), "--max-steps", str(steps), "--no-progress"]
+    threads = 1
     for item in overrides:
-        arguments += ["--set", item]
-    d4rt_train(arguments + (["--resume"] if resume else []), out.parent / f"{out.name}.log", append=True)
+        if item.startswith("threads="):
+            threads = int(item.partition("=")[2])
+        else:
+            arguments += ["--set", item]
+    d4rt_train(arguments + (["--resume"] if resume else []), out.parent / f"{out.name}.log", append=True,
+               threads=threads)
 
 
 def finished(out: Path, steps: int) -> bool:

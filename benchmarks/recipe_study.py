@@ -104,10 +104,10 @@ def run_train(config: dict, out: Path, steps: int, validate: bool, init_from: Pa
     return training_seconds(read_metrics(out), 1)
 
 
-def d4rt_train(arguments: list[str], log: Path, append: bool = False) -> None:
-    """``d4rt train ARGUMENTS`` in a subprocess with one torch thread, its output in ``log`` (appended to with
-    ``append``, e.g. by a resumed run); a failed run raises one line naming the log."""
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+def d4rt_train(arguments: list[str], log: Path, append: bool = False, threads: int = 1) -> None:
+    """``d4rt train ARGUMENTS`` in a subprocess with ``threads`` torch threads (its loader workers too), its output
+    in ``log`` (appended to with ``append``, e.g. by a resumed run); a failed run raises one line naming the log."""
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
     log.parent.mkdir(parents=True, exist_ok=True)
     with open(log, "a" if append else "w") as stream:
         code = subprocess.run([sys.executable, "-m", "d4rt", "train", *arguments], env=env, stdout=stream,

@@ -300,3 +300,30 @@ def test_a_clip_rendered_on_the_gpu_matches_the_cpu_render():
     same = np.isclose(cpu.depth, gpu.depth, rtol=1e-4) & (cpu.object_ids == gpu.object_ids)
     assert same.mean() > 0.99
     assert np.abs(cpu.rgb.astype(int) - gpu.rgb.astype(int))[same].mean() < 1.0
+
+
+def test_echo_draws_several_samples_from_one_render(monkeypatch):
+    import d4rt.data.dataset as dataset_module
+
+    renders = []
+    real_render = dataset_module.render_clip
+    monkeypatch.setattr(dataset_module, "render_clip", lambda *a, **k: renders.append(a[0]) or real_render(*a, **k))
+    options = dict(num_clips=5, frames=4, size=(32, 32), render_pixels=32 * 32,
+                   sampler=QuerySamplerConfig(num_queries=64))
+    plain, echoed = ClipQueryDataset(DatasetConfig(**options)), ClipQueryDataset(DatasetConfig(echo=3, **options))
+    first = echoed.sample(2, 0)
+    for key, value in plain[2].items():  # repeat 0 is the plain stream's sample
+        assert torch.equal(first[key], value), key
+    renders.clear()
+    samples = [echoed.sample(2, r) for r in (0, 1, 2)]
+    assert len(renders) == 0  # the clip rendered for `first` serves every repeat of index 2
+    again = echoed.sample(2, 1)
+    assert torch.equal(again["queries"], samples[1]["queries"])  # deterministic per (index, repeat)
+    assert not torch.equal(samples[1]["queries"], samples[0]["queries"])
+    assert not torch.equal(samples[2]["queries"], samples[1]["queries"])
+    echoed.sample(3, 0)
+    assert len(renders) == 1  # a new clip, rendered once
+    with pytest.raises(IndexError, match="repeat 3 out of range"):
+        echoed.sample(2, 3)
+    with pytest.raises(UserError, match="echo must be a positive integer"):
+        DatasetConfig(echo=0)

@@ -23,7 +23,7 @@ def run_driver(config, out, *arms: list[str]) -> subprocess.CompletedProcess:
 def test_two_arms_at_equal_time(clip_dir, tmp_path):
     config = write_config(tmp_path / "config.yaml", fast_config(clip_dir, run={"grad_accum": 2, "max_steps": 5}))
     out = tmp_path / "runs"
-    arms = (["q16", "data.dataset.sampler.num_queries=16"], ["q48", "data.dataset.sampler.num_queries=48"])
+    arms = (["q16", "data.dataset.sampler.num_queries=16"], ["q48", "data.dataset.sampler.num_queries=48", "threads=2"])
     done = run_driver(config, out, *arms)
     assert done.returncode == 0, done.stderr[-2000:]
     result = json.loads((out / "arms.json").read_text())

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from d4rt.config import D4RTConfig
+from d4rt.errors import UserError
 from d4rt.model import D4RT
 from d4rt.training import OptimConfig, build_optimizer, learning_rate, read_checkpoint, write_checkpoint
 from d4rt.training.data import SampleStream
@@ -70,6 +71,24 @@ def test_sample_stream_splits_one_global_order_across_ranks_and_resumes_anywhere
     # Resuming at step 2 yields exactly what the uninterrupted stream yields from step 2 on.
     samples_per_step = batch * accum * world
     assert keys(1, start=2 * samples_per_step, steps=2) == per_rank[1][2 * accum:]
+
+
+def test_an_echoing_stream_repeats_each_clip_of_the_plain_stream_and_resumes_anywhere():
+    def flat(echo, start=0, samples=24):
+        stream = iter(SampleStream(7, 5, start, 2, 3, 0, 1, echo=echo))
+        return [k for _ in range(samples // 2) for k in next(stream)]
+
+    plain, echoed = flat(1), flat(3)
+    assert echoed == [(*plain[g // 3], g % 3) for g in range(24)]  # each plain key three times, repeats 0, 1, 2
+    assert flat(3, start=6, samples=18) == echoed[6:]  # resumed after one step of 6 samples
+
+
+def test_echo_is_refused_for_track_clips():
+    from d4rt.training import TrainConfig
+
+    config = TrainConfig.from_dict({"data": {"dataset": {"echo": 2}, "tracks": {"directory": "unused"}}})
+    with pytest.raises(UserError, match="echo 2 applies to data.dataset"):
+        config.validate()
 
 
 def test_checkpoint_round_trip_is_exact_and_loads_as_a_model(tmp_path):

@@ -42,6 +42,14 @@ class DatasetConfig:
     128 x 128 clip); the renderer is torch code and runs on any device. A clip rendered on a GPU may differ
     from the CPU's in the last bits (float rounding), so a run's exact sample stream is per render device.
     Loader workers that render on a GPU are started with "spawn" (CUDA does not survive a fork).
+    echo: samples drawn from each clip ("data echoing", Choi et al. 2019): the training stream takes every
+    clip ``echo`` times in a row, each time with its own view, queries and photometric augmentation, and a
+    loader process renders (or reads) the clip once for them. Why: a run whose loaders cannot keep up with the
+    model (GPU training here; CPU training, where the rendering worker takes a core from the model) sees more
+    samples per minute for the same rendering. Only the first of a clip's samples is the sample of an
+    ``echo: 1`` stream. The clip is reused only when its samples reach the same loader process in a row: with
+    at most one loader worker, or with a ``batch_size`` that is a multiple of ``echo`` (workers take whole
+    batches); otherwise each sample renders it again (still correct, no faster).
     """
 
     source: str = "render"
@@ -57,6 +65,7 @@ class DatasetConfig:
     augment: AugmentConfig = field(default_factory=AugmentConfig)
     sampler: QuerySamplerConfig = field(default_factory=QuerySamplerConfig)
     render_device: str = "cpu"
+    echo: int = 1
 
     def __post_init__(self) -> None:
         if isinstance(self.augment, dict):
@@ -71,6 +80,8 @@ class DatasetConfig:
             raise UserError(f"frames, frame_choices and size must be positive, got {self.frames}, "
                             f"{self.frame_choices}, {self.size}")
 
+        if isinstance(self.echo, bool) or not isinstance(self.echo, int) or self.echo < 1:
+            raise UserError(f"dataset echo must be a positive integer (samples per clip), got {self.echo!r}")
         device = str(self.render_device)
         if not re.fullmatch(r"cpu|cuda(:\d+)?", device):
             raise UserError(f"dataset render_device must be 'cpu', 'cuda' or 'cuda:N', got {self.render_device!r}")
@@ -138,6 +149,7 @@ class ClipQueryDataset(torch.utils.data.Dataset):
                                 f"no such CUDA device ({torch.cuda.device_count()} visible); use render_device: cpu")
         self.sampler = QuerySampler(config.sampler)
         self.epoch = 0
+        self._last: tuple[tuple[int, int], Clip] | None = None  # the clip echoed samples share (see ``echo``)
         if config.source == "files":
             if not config.directory:
                 raise UserError("dataset source 'files' needs a directory of .npz clips")
@@ -154,14 +166,21 @@ class ClipQueryDataset(torch.utils.data.Dataset):
         return len(self.files) if self.files else self.config.num_clips
 
     def __getitem__(self, index: int) -> dict:
+        return self.sample(index)
+
+    def sample(self, index: int, repeat: int = 0) -> dict:
+        """Sample ``repeat`` (0 <= repeat < echo) of clip ``index``: repeat 0 is ``dataset[index]``; the others see
+        the same clip with their own view, queries and augmentation (see ``echo``)."""
         if not 0 <= index < len(self):
             raise IndexError(f"index {index} out of range for {len(self)} samples")
         cfg = self.config
+        if not 0 <= repeat < cfg.echo:
+            raise IndexError(f"repeat {repeat} out of range for echo {cfg.echo}")
         rng = np.random.default_rng([cfg.seed, self.epoch, index])
         # Drawn only when there is a choice, so fixed-length runs keep their exact sample stream.
         frames = int(cfg.frame_choices[rng.integers(len(cfg.frame_choices))]) if cfg.frame_choices else cfg.frames
         if self.files:
-            clip = load_clip(self.files[index])
+            clip = self._clip((self.epoch, index), lambda: load_clip(self.files[index]))
             stride = None
         else:
             stride = sample_stride(rng, frames * cfg.augment.max_stride, frames, cfg.augment.max_stride) \
@@ -170,9 +189,19 @@ class ClipQueryDataset(torch.utils.data.Dataset):
             height = max(8, int(round(math.sqrt(cfg.render_pixels / aspect))))
             width = max(8, int(round(math.sqrt(cfg.render_pixels * aspect))))
             clip_seed = int(rng.integers(0, 2**31 - 1))
-            clip = render_clip(clip_seed, frames, height, width, device=cfg.render_device, time_stride=stride,
-                               **cfg.scene_options)
+            clip = self._clip((self.epoch, index), lambda: render_clip(
+                clip_seed, frames, height, width, device=cfg.render_device, time_stride=stride, **cfg.scene_options))
             stride = 1  # the stride is already in the rendered frame times
+        if repeat:  # an echo: the clip's own draws above, then a generator of its own for everything else
+            rng = np.random.default_rng([cfg.seed, self.epoch, index, repeat])
         view = sample_view(rng, clip.num_frames, (clip.height, clip.width), frames, cfg.size, cfg.augment,
                            stride=stride)
         return make_training_sample(clip, view, rng, self.sampler, cfg.augment)
+
+    def _clip(self, key: tuple[int, int], make) -> Clip:
+        """``make()``, or the clip it made for ``key`` last time when echoing (one clip kept per process)."""
+        if self.config.echo == 1:
+            return make()
+        if self._last is None or self._last[0] != key:
+            self._last = (key, make())
+        return self._last[1]

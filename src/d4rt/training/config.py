@@ -214,6 +214,8 @@ class TrainConfig:
             data.dataset.augment.validate()
         data.dataset.sampler.validate()  # validation samples its queries with it
         source = "data.tracks" if data.tracks is not None else "data.dataset"
+        if data.tracks is not None and data.dataset.echo != 1:
+            raise UserError(f"data.dataset.echo {data.dataset.echo} applies to data.dataset's clips, not to data.tracks")
         if data.tracks is None and data.dataset.frame_choices and data.batch_size != 1:
             raise UserError(f"data.dataset.frame_choices needs data.batch_size 1 (clips of different lengths "
                             f"cannot be stacked), got {data.batch_size}; use run.grad_accum for larger batches")

@@ -7,6 +7,8 @@ micro-step ``m`` of rank ``r`` takes ``batch_size`` of them at offset ``(m * wor
 Since every sample is a deterministic function of (seed, epoch, index) (see
 :class:`d4rt.data.ClipQueryDataset`), the data position is just the index of the next global sample,
 which checkpoints store: resuming continues with exactly the samples an uninterrupted run would see.
+With data echoing (``echo`` > 1, :class:`d4rt.data.DatasetConfig`) global sample ``g`` is repeat ``g mod echo``
+of the clip that sample ``g div echo`` of the plain stream names.
 """
 
 from __future__ import annotations
@@ -31,19 +33,19 @@ class EpochIndexedDataset(torch.utils.data.Dataset):
     def __len__(self) -> int:
         return len(self.dataset)
 
-    def __getitem__(self, key: tuple[int, int]) -> dict:
-        epoch, index = key
+    def __getitem__(self, key: tuple[int, int] | tuple[int, int, int]) -> dict:
+        epoch, index, *repeat = key
         self.dataset.set_epoch(epoch)
-        return self.dataset[index]
+        return self.dataset.sample(index, *repeat) if repeat else self.dataset[index]
 
 
 class SampleStream(torch.utils.data.Sampler):
-    """Infinite batch sampler of one rank: lists of ``(epoch, index)`` keys, one list per micro-step,
-    starting at global sample ``start``."""
+    """Infinite batch sampler of one rank: lists of ``(epoch, index)`` keys (``(epoch, index, repeat)`` when
+    ``echo`` > 1), one list per micro-step, starting at global sample ``start``."""
 
     def __init__(self, length: int, seed: int, start: int, batch_size: int, grad_accum: int, rank: int,
-                 world_size: int):
-        self.length, self.seed, self.start = length, seed, start
+                 world_size: int, echo: int = 1):
+        self.length, self.seed, self.start, self.echo = length, seed, start, echo
         self.batch_size, self.grad_accum = batch_size, grad_accum
         self.rank, self.world_size = rank, world_size
         self._order: tuple[int, np.ndarray] | None = None
@@ -52,8 +54,13 @@ class SampleStream(torch.utils.data.Sampler):
     def samples_per_step(self) -> int:
         return self.batch_size * self.grad_accum * self.world_size
 
-    def key(self, g: int) -> tuple[int, int]:
-        """(epoch, dataset index) of global sample ``g``."""
+    def key(self, g: int) -> tuple[int, int] | tuple[int, int, int]:
+        """(epoch, dataset index) of global sample ``g``, and its repeat when echoing."""
+        if self.echo > 1:
+            return (*self._plain_key(g // self.echo), g % self.echo)
+        return self._plain_key(g)
+
+    def _plain_key(self, g: int) -> tuple[int, int]:
         epoch, position = divmod(g, self.length)
         if self._order is None or self._order[0] != epoch:
             self._order = (epoch, np.random.default_rng([self.seed, epoch]).permutation(self.length))

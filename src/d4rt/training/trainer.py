@@ -218,7 +218,7 @@ class Trainer:
         data, run = cfg.data, cfg.run
         dataset = data.build_dataset(str(context.device))
         stream = SampleStream(len(dataset), run.seed, next_sample, data.batch_size, run.grad_accum, context.rank,
-                              context.world_size)
+                              context.world_size, echo=data.dataset.echo if data.tracks is None else 1)
         loader = training_loader(dataset, stream, data.workers, run.seed, context.rank,
                                  pin_memory=context.device.type == "cuda",
                                  spawn=data.tracks is None and data.dataset.renders_on_gpu)
