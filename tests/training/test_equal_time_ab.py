@@ -23,7 +23,7 @@ def run_driver(config, out, *arms: list[str]) -> subprocess.CompletedProcess:
 def test_two_arms_at_equal_time(clip_dir, tmp_path):
     config = write_config(tmp_path / "config.yaml", fast_config(clip_dir, run={"grad_accum": 2, "max_steps": 5}))
     out = tmp_path / "runs"
-    arms = (["q16", "data.dataset.sampler.num_queries=16"], ["q48", "data.dataset.sampler.num_queries=48", "threads=2"])
+    arms = (["q16", "data.dataset.sampler.num_queries=16"], ["q48", "data.dataset.sampler.num_queries=48"])
     done = run_driver(config, out, *arms)
     assert done.returncode == 0, done.stderr[-2000:]
     result = json.loads((out / "arms.json").read_text())
@@ -51,3 +51,20 @@ def test_one_arm_or_a_bad_override_is_refused(clip_dir, tmp_path):
     failing = run_driver(config, tmp_path / "runs", ["a", "run.no_such_field=1"], ["b", "run.seed=1"])
     assert failing.returncode == 1 and "Traceback" not in failing.stderr
     assert "exited with" in failing.stderr and "a-calibration.log" in failing.stderr
+
+
+def test_an_arms_threads_set_its_torch_threads_and_are_not_a_config_key(monkeypatch, tmp_path):
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        import equal_time_ab
+    finally:
+        sys.path.remove(str(REPO / "benchmarks"))
+    calls = []
+    monkeypatch.setattr(equal_time_ab, "d4rt_train", lambda arguments, log, append, threads: calls.append(
+        (arguments, threads)))
+    equal_time_ab.train(tmp_path / "c.yaml", tmp_path / "runs" / "e2", 5, ["data.dataset.echo=2", "threads=2"])
+    equal_time_ab.train(tmp_path / "c.yaml", tmp_path / "runs" / "e1", 5, ["data.dataset.echo=1"])
+    (first, threads), (second, default) = calls
+    assert threads == 2 and default == 1
+    assert "--set" in first and "data.dataset.echo=2" in first and "threads=2" not in first
+    assert "data.dataset.echo=1" in second
