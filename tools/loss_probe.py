@@ -14,7 +14,7 @@ sampler) with its seed replaced by 6,000,000 (a stream no training stage, probe 
 ``--samples`` indices, each with ``--queries`` queries (the same for every checkpoint, whatever a run trained
 with). Every checkpoint answers them in fp32 without gradients; the terms are ``d4rt_loss``'s under the config's
 loss settings (``3d`` is the paper's L3D), plus ``motion_terms``' (``2d_moved``, ``2d_still``, ``2d_slope``: does the
-model find a pixel in another frame?).
+model find a pixel in another frame?) and ``query_kind_terms``' (L3D over each kind of query: where the error is).
 
 Writes JSON: per checkpoint the mean of every term over the samples and the per-sample values; and for every
 checkpoint after the first, per term, the paired difference against the first (``tools/compare_evals.py``'s
@@ -40,7 +40,7 @@ from d4rt.data import build_dataset  # noqa: E402
 from d4rt.errors import UserError  # noqa: E402
 from d4rt.model import D4RT  # noqa: E402
 from d4rt.training.config import TrainConfig  # noqa: E402
-from d4rt.training.losses import d4rt_loss  # noqa: E402
+from d4rt.training.losses import d4rt_loss, point_loss  # noqa: E402
 
 HELD_OUT_SEED = 6_000_000
 # The terms reported in the table (all terms are in the JSON).
@@ -65,9 +65,34 @@ def sample_losses(model: D4RT, samples: list[dict[str, torch.Tensor]], config: T
     for sample in samples:
         batch = {k: v[None] for k, v in sample.items()}
         out = model(batch["video"], batch["queries"], batch["aspect_ratio"])
-        for key, value in (d4rt_loss(out, batch, config.loss)[1] | motion_terms(out["uv"][0], sample)).items():
+        terms_of_sample = (d4rt_loss(out, batch, config.loss)[1] | motion_terms(out["uv"][0], sample)
+                           | query_kind_terms(out["points"][0], sample))
+        for key, value in terms_of_sample.items():
             terms.setdefault(key, []).append(float(value))
     return terms
+
+
+# The kinds of query by their times (t_src, t_tgt, t_cam): a depth query, the same point seen from another frame's
+# camera (what the camera recipes ask), and a point followed to another time in that time's camera or in another.
+QUERY_KINDS = {
+    "3d_depth": lambda s, t, c: (s == t) & (t == c),
+    "3d_other_camera": lambda s, t, c: (s == t) & (t != c),
+    "3d_track": lambda s, t, c: (s != t) & (t == c),
+    "3d_track_other_camera": lambda s, t, c: (s != t) & (t != c),
+}
+
+
+def query_kind_terms(points: torch.Tensor, sample: dict[str, torch.Tensor]) -> dict[str, float]:
+    """L3D (``point_loss``, normalised over all the sample's valid queries as in training) averaged over each kind
+    of query in ``QUERY_KINDS``, and over the queries whose point moves (``3d_moving``: true scene-flow motion
+    non-zero) and those whose point does not (``3d_static``). points: ``(N, 3)``. NaN where a sample has none."""
+    valid = sample["valid"].bool()
+    per_query = point_loss(points[None].float(), sample["points"][None].float(), valid[None])[0]
+    s, t, c = sample["queries"][:, 2], sample["queries"][:, 3], sample["queries"][:, 4]
+    moving = sample["motion"].abs().sum(-1) > 0
+    masks = {name: kind(s, t, c) for name, kind in QUERY_KINDS.items()} | {"3d_moving": moving, "3d_static": ~moving}
+    return {name: float(per_query[mask & valid].mean()) if (mask & valid).any() else float("nan")
+            for name, mask in masks.items()}
 
 
 def motion_terms(uv: torch.Tensor, sample: dict[str, torch.Tensor]) -> dict[str, float]:

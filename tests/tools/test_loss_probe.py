@@ -90,6 +90,27 @@ def test_motion_terms_measure_how_far_pixels_move():
     assert all(np.isnan(v) for v in loss_probe.motion_terms(target, sample).values())
 
 
+def test_query_kind_terms_split_the_l3d_by_query_kind(config_path):
+    sample = loss_probe.held_out_samples(TrainConfig.load(config_path), 1, 400)[0]
+    exact = loss_probe.query_kind_terms(sample["points"], sample)  # the true points: zero error of every kind
+    assert all(v == 0.0 or np.isnan(v) for v in exact.values()) and not np.isnan(exact["3d_depth"])
+    torch.manual_seed(0)
+    noisy = sample["points"] * (1 + 0.2 * torch.rand(len(sample["points"]), 1))
+    terms = loss_probe.query_kind_terms(noisy, sample)
+    # The kinds split the valid queries, so their means weighted by their counts give the sample's L3D, and so do
+    # the moving and static queries.
+    valid = sample["valid"].bool()
+    s, t, c = sample["queries"][:, 2], sample["queries"][:, 3], sample["queries"][:, 4]
+    per_query = loss_probe.point_loss(noisy[None], sample["points"][None], valid[None])[0]
+    counts = {name: int((kind(s, t, c) & valid).sum()) for name, kind in loss_probe.QUERY_KINDS.items()}
+    assert sum(counts.values()) == int(valid.sum()) and counts["3d_depth"] > 0 and counts["3d_track"] > 0
+    pooled = sum(terms[name] * n for name, n in counts.items() if n) / int(valid.sum())
+    assert pooled == pytest.approx(float(per_query[valid].mean()), rel=1e-5)
+    moving = int(((sample["motion"].abs().sum(-1) > 0) & valid).sum())
+    split = (terms["3d_moving"] * moving + terms["3d_static"] * (int(valid.sum()) - moving)) / int(valid.sum())
+    assert split == pytest.approx(pooled, rel=1e-5) and 0 < moving < int(valid.sum())
+
+
 def test_a_config_with_track_clips_is_refused(tmp_path, capsys):
     config = yaml.safe_load((ROOT / "configs" / "tiny-cpu.yaml").read_text())
     config["data"]["tracks"] = {"directory": str(tmp_path)}
