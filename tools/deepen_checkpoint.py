@@ -14,6 +14,7 @@ from pathlib import Path
 
 import torch
 
+from d4rt.errors import UserError
 from d4rt.model import D4RT
 from d4rt.model.grow import deepen
 
@@ -38,8 +39,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the new blocks' initialisation")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    model = D4RT.from_pretrained(args.checkpoint)
-    grown = deepen(model, args.encoder_depth, args.decoder_depth, seed=args.seed).eval()
+    try:  # a missing or mismatched checkpoint, or depths that do not grow it: one line, no traceback
+        model = D4RT.from_pretrained(args.checkpoint)
+        grown = deepen(model, args.encoder_depth, args.decoder_depth, seed=args.seed).eval()
+    except UserError as error:
+        parser.error(str(error))
     grown.save_pretrained(args.out)
     count = lambda m: sum(p.numel() for p in m.parameters())  # noqa: E731
     print(f"{args.checkpoint} ({model.config.encoder_depth}/{model.config.decoder_depth} blocks, {count(model):,} "
