@@ -10,7 +10,7 @@
 # A 15-minute lease (the machine's start counted) has room for two calls instead (docs/training.md):
 #   TRAIN_S=300 PART_A_S=110 CALL_S=570 bash benchmarks/gpu_session.sh lease   # train, snapshot, start the bench
 #   (PROBE_S=60 first profiles one GPU step, batch 1, into probe.txt; INIT_FROM=DIR continues from a model directory;
-#   BENCH=0 skips the bench, for a lease that only trains; ECHO=2 gives each rendered clip two samples)
+#   BENCH=0 skips the bench, for a lease that only trains; ECHO=E draws E samples from each rendered clip, default 2)
 #   bash benchmarks/gpu_session.sh collect  # only if the bench was still running: waits WAIT_S (150 s) for it
 # Each call writes into $OUT: weights.tar.part-aa, -ab, ... (model.safetensors, config.json, metrics.jsonl and
 # train_config.yaml of the run, split under the tool's 16 MiB per file), progress.txt, and at the end bench-gpu.json.
@@ -135,8 +135,9 @@ lease)  # a 15-minute lease in two calls: this one (<= 600 s) trains for TRAIN_S
   EXTRA=()
   # INIT_FROM: a model directory to continue from (an earlier lease's weights, carried; see docs/training.md)
   INIT=(); [ -z "${INIT_FROM:-}" ] || INIT=(--set model.init_from=$INIT_FROM)
-  # ECHO=E: E samples per rendered clip (data echoing, stage 46), for loaders that bound the run (the second lease)
-  [ -z "${ECHO:-}" ] || INIT+=(--set data.dataset.echo=$ECHO)
+  # ECHO=E: E samples per rendered clip (data echoing, stage 46). The loaders bound the run (the second lease);
+  # echo 2 doubled the samples a second on an H200 (the third lease), so it is the default; ECHO=1 turns it off
+  INIT+=(--set data.dataset.echo=${ECHO:-2})
   timeout -s TERM $PART_A_S python3 -m d4rt train --config $CONFIG --out $RUN --max-steps 300 --no-progress \
     "${INIT[@]}" > $G/train-a.log 2>&1 || true
   if ! python3 -c "import json, sys; sys.exit(0 if max(json.loads(l)['step'] for l in open('$RUN/metrics.jsonl')) >= 20 else 1)" 2>/dev/null; then
