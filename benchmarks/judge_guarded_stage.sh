@@ -5,7 +5,7 @@
 # `d4rt train --config configs/ship-tiny-cpu-stageN.yaml --out /work/runs/ship-tiny-stageN` (started before or after).
 # 1. The kept raw checkpoints of steps 2,500-4,000 (PROBE_STEPS) go through the held-out camera probe; the lowest is step S.
 # 2. The start and (1 - w) x start + w x S for w = 0.25, 0.5, 0.75 go through the same probe; the candidate is the
-#    largest w not worse than the start (none: stop).
+#    largest w not worse than the start (times CAMERA_TOLERANCE, below; none: stop).
 # 3. Focal gate: synthetic median below the shipped figure, real TUM within 20%. 4. Passed: `d4rt eval`.
 # With --focal-over-averages (stage 32 on; stated in its config before its judge measured anything) the candidate is
 # instead the largest w that kept the start's camera and whose synthetic focal error on held-out clips
