@@ -7,6 +7,7 @@ import torch
 
 from d4rt.errors import UserError
 from d4rt.training import LossConfig, d4rt_loss, log_compress, mean_depth, point_loss
+from d4rt.training.losses import ray_angle_loss
 
 LOG2 = math.log(2.0)
 
@@ -130,6 +131,59 @@ def test_log_depth_term_by_hand_scale_invariant_and_masked():
         assert d4rt_loss(scaled, batch, config)[1]["log_depth"].item() == pytest.approx(LOG2 / 2, rel=1e-5)
     with pytest.raises(UserError, match="weight_log_depth must be a number >= 0"):
         LossConfig(weight_log_depth=-1.0).validate()
+
+
+def test_ray_angle_term_by_hand_scale_invariant_and_masked():
+    """The angle between predicted and true point over the clip's mean angle of its in-front targets."""
+    target = torch.tensor([[[0.0, 0.0, 2.0], [2.0, 0.0, 2.0], [0.0, 0.0, -3.0], [0.0, 0.0, 0.0]]])
+    # In-front targets lie 0 and 45 degrees off the axis: the spread is 22.5 degrees.
+    pred = torch.tensor([[[1.0, 0.0, 1.0], [4.0, 0.0, 4.0], [0.0, 3.0, 0.0], [1.0, 1.0, 1.0]]])
+    mask = torch.tensor([[True, True, True, True]])
+    error, defined = ray_angle_loss(pred, target, mask)
+    assert defined.tolist() == [[True, True, True, False]]  # the last target is missing (zeroed)
+    torch.testing.assert_close(error[0, :3], torch.tensor([2.0, 0.0, 4.0]))  # 45, 0, 90 degrees over 22.5
+    for pred_scale, target_scale in ((1e-3, 1.0), (1.0, 7.0), (1e4, 0.01)):
+        scaled, _ = ray_angle_loss(pred * pred_scale, target * target_scale, mask)
+        torch.testing.assert_close(scaled[defined], error[defined])
+    batch = two_query_batch()
+    batch["points"] = torch.tensor([[[1.0, 0.0, 4.0], [-1.0, 0.5, 4.0]]])
+    pred_dict = perfect(batch)
+    pred_dict["points"] = (batch["points"] * torch.tensor([1.3, 1.3, 1.0])).requires_grad_(True)  # wider view
+    total, terms = d4rt_loss(pred_dict, batch, LossConfig(weight_ray_angle=2.0))
+    without, off_terms = d4rt_loss(pred_dict, batch, LossConfig())
+    assert "ray_angle" not in off_terms and terms["ray_angle"].item() > 0
+    assert (total - without).item() == pytest.approx(2.0 * terms["ray_angle"].item(), rel=1e-5)
+    with pytest.raises(UserError, match="weight_ray_angle must be a number >= 0"):
+        LossConfig(weight_ray_angle=-0.5).validate()
+
+
+def test_ray_angle_term_prices_a_focal_error_alike_at_every_field_of_view():
+    """A 40% focal error costs the ray-angle term about the same in a 30- and a 100-degree view (a third more
+    in the narrow one), while L3D prices the narrow view's error three times lower (why the term exists:
+    module docstring)."""
+    generator = torch.Generator().manual_seed(0)
+    pixels = torch.rand(1, 2000, 2, generator=generator) * 2 - 1  # normalised image coordinates in [-1, 1]
+    depth = 1 + 4 * torch.rand(1, 2000, generator=generator)
+    mask = torch.ones(1, 2000, dtype=torch.bool)
+    ray_costs, l3d_costs = [], []
+    for fov in (30.0, 100.0):
+        half_width = math.tan(math.radians(fov / 2))
+        target = torch.cat([pixels * half_width * depth[..., None], depth[..., None]], -1)
+        pred = torch.cat([pixels * half_width / 1.4 * depth[..., None], depth[..., None]], -1)  # focal 1.4x
+        ray_costs.append(ray_angle_loss(pred, target, mask)[0].mean().item())
+        l3d_costs.append(point_loss(pred, target, mask).mean().item())
+    assert ray_costs[1] < ray_costs[0] < 1.5 * ray_costs[1]
+    assert l3d_costs[1] > 2.5 * l3d_costs[0]
+
+
+def test_ray_angle_gradients_are_finite_with_missing_targets_and_zero_predictions():
+    target = torch.tensor([[[0.0, 0.0, 0.0], [1.0, 0.0, 2.0], [1.0, 0.0, 2.0]]])
+    pred = torch.tensor([[[1.0, 0.0, 1.0], [0.0, 0.0, 0.0], [2.0, 0.0, 4.0]]], requires_grad=True)
+    mask = torch.tensor([[False, True, True]])
+    error, defined = ray_angle_loss(pred, target, mask)
+    assert defined.tolist() == [[False, False, True]]
+    torch.where(defined, error, torch.zeros_like(error)).sum().backward()
+    assert torch.isfinite(pred.grad).all()
 
 
 @pytest.mark.parametrize("scale", [1e-3, 0.37, 7.0, 1e4])

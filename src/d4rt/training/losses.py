@@ -58,6 +58,15 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   that ratio; the log depth costs a ratio's error the same at every depth. A prediction below
   ``_MIN_LOG_DEPTH`` of its clip's mean depth (or behind the camera) gets no gradient from this term; L3D
   still pulls it.
+- *Ray angle* (not in paper; ``weight_ray_angle`` > 0): the angle between the predicted and the true point
+  as seen from camera t_cam (the angle between the two vectors, whatever their lengths), divided by the
+  clip's mean angle of its true in-front points off the optical axis (a stand-in for half the field of
+  view). Why: a focal error moves every point sideways by a fixed share of its angle off the axis, and L3D
+  prices that sideways error in the points' own units: in a 30-degree view a 40% focal error moves points
+  by about 5% of their depth, less than the depth error L3D is busy with, so narrow views' focal stays
+  pulled toward the mean field of view (stage 50, docs/training.md). Divided by the clip's own angular
+  spread, the same focal error costs the same at every field of view; the angle ignores depth, so the
+  term does not compete with L3D over it.
 """
 
 from __future__ import annotations
@@ -78,6 +87,9 @@ POSE_TRANSLATION_ERRORS = ("l1", "squared")
 _MIN_SCALE = 1e-12
 # Lowest normalised depth the log-depth term takes a log of (1/1000 of the clip's mean depth).
 _MIN_LOG_DEPTH = 1e-3
+# Smallest per-clip angular spread (radians) the ray-angle term divides by: a clip seen head-on along
+# one ray only (never in real data) cannot blow the term up.
+_MIN_RAY_SPREAD = 1e-3
 
 
 @dataclass
@@ -107,11 +119,13 @@ class LossConfig:
     pose_translation: str = "l1"
     weight_pose_translation: float | None = None
     weight_log_depth: float = 0.0
+    weight_ray_angle: float = 0.0
 
     def validate(self) -> None:
         optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
-                     "weight_normal", "weight_pose", "weight_log_depth", *optional):
+                     "weight_normal", "weight_pose", "weight_log_depth", "weight_ray_angle",
+                     *optional):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
                 raise UserError(f"loss {name} must be a number >= 0, got {value!r}")
@@ -169,6 +183,40 @@ def log_depth_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
     return error.abs(), in_front
 
 
+def vector_angle(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Angle in radians between the vectors ``a`` and ``b`` (..., 3), elementwise: (...). ``atan2`` of the
+    cross and dot products stays exact near 0 and pi, where ``acos`` of a cosine loses its precision."""
+    cross = torch.linalg.cross(a, b, dim=-1)
+    return torch.atan2(torch.linalg.vector_norm(cross, dim=-1), (a * b).sum(-1))
+
+
+def ray_angle_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-query ray-angle error (module docstring) and where it is defined.
+
+    pred, target: (B, N, 3) in each query's camera t_cam; mask: (B, N) bool (queries with a true point).
+    Returns ``(error (B, N), defined (B, N) bool)``: the angle between ``pred`` and ``target`` divided by the
+    clip's mean angle off the optical axis of its targets in front of camera t_cam; ``defined`` is ``mask``
+    where neither point is at the camera centre.
+    """
+    defined = mask & (target.norm(dim=-1) > 0) & (pred.detach().norm(dim=-1) > 0)
+    axis = torch.zeros_like(target)
+    axis[..., 2] = 1.0
+    # Zero vectors (targets zeroed where missing; a degenerate prediction) are swapped for the axis:
+    # atan2(0, 0)'s gradient is NaN, and a NaN times the zero gradient of a masked-out query is still NaN.
+    target = torch.where(defined[..., None], target, axis)
+    pred = torch.where(defined[..., None], pred, axis)
+    in_front = defined & (target[..., 2] > 0)
+    spread = masked_mean_per_clip(vector_angle(target, axis), in_front).clamp_min(_MIN_RAY_SPREAD)
+    return vector_angle(pred, target) / spread[:, None], defined
+
+
+def masked_mean_per_clip(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean of ``values`` (B, N) over ``mask`` (B, N) bool within each clip: (B,); 0 for an empty clip."""
+    picked = torch.where(mask, values, torch.zeros_like(values))
+    return picked.sum(1) / mask.sum(1).clamp_min(1)
+
+
 def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
               config: LossConfig | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """The total training loss and every term, from a batched forward and its targets.
@@ -186,7 +234,7 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         ``(total, terms)``: the scalar to minimise and a dict of detached scalars, each unweighted:
         ``3d`` (plain L3D), ``3d_confident`` (c * L3D), ``confidence`` (-log c), ``2d``, ``visibility``,
         ``motion``, ``normal``, plus ``confidence_mean`` (mean c) and ``valid_fraction``, ``uv_fraction``;
-        with their weights > 0 also ``pose_rotation``, ``pose_translation`` and ``log_depth``.
+        with their weights > 0 also ``pose_rotation``, ``pose_translation``, ``log_depth`` and ``ray_angle``.
     """
     config = config or LossConfig()
     p = {k: pred[k].float() for k in PREDICTION_KEYS}
@@ -237,6 +285,10 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         log_depth, in_front = log_depth_loss(p["points"], target_points, valid)
         optional_terms["log_depth"] = masked_mean(log_depth, in_front)
         total = total + config.weight_log_depth * optional_terms["log_depth"]
+    if config.weight_ray_angle > 0:
+        ray_angle, defined = ray_angle_loss(p["points"], target_points, valid)
+        optional_terms["ray_angle"] = masked_mean(ray_angle, defined)
+        total = total + config.weight_ray_angle * optional_terms["ray_angle"]
     terms = {
         "3d": masked_mean(l3d, valid),
         "3d_confident": weighted_3d if config.confidence_weighting else masked_mean(confidence * l3d, valid),
