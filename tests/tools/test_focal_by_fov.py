@@ -1,0 +1,50 @@
+"""tools/focal_by_fov.py: clips fall into the band of their true horizontal FOV, and each band's figures are the
+medians of its own clips."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[2] / "tools" / "focal_by_fov.py"
+spec = importlib.util.spec_from_file_location("focal_by_fov", SCRIPT)
+focal_by_fov = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(focal_by_fov)
+
+
+def clip(fov_degrees: float, ratio: float, width: int = 128) -> dict:
+    true_fx = width / (2 * math.tan(math.radians(fov_degrees / 2)))
+    return {"size": [96, width], "true_fx_median": true_fx, "estimated_fx_median": ratio * true_fx}
+
+
+def test_bands_by_true_fov_and_their_medians():
+    clips = [clip(35, 0.5), clip(45, 0.7), clip(40, 0.6), clip(60, 1.0), clip(100, 1.25, width=64)]
+    rows = focal_by_fov.focal_by_fov(clips)
+    assert [r["band"] for r in rows] == ["< 50", "50-70", "70-90", ">= 90"]
+    assert [r["clips"] for r in rows] == [3, 1, 0, 1]
+    assert rows[0]["median_log_ratio"] == pytest.approx(math.log(0.6))
+    assert rows[0]["median_focal_error"] == pytest.approx(0.4)
+    assert rows[1]["median_focal_error"] == pytest.approx(0.0, abs=1e-12)
+    assert rows[2]["median_log_ratio"] is None
+    assert rows[3]["median_log_ratio"] == pytest.approx(math.log(1.25))
+    assert focal_by_fov.horizontal_fov_degrees(128, 64) == pytest.approx(90.0)
+
+
+def test_command_reads_every_synthetic_set_and_refuses_other_json(tmp_path, capsys):
+    report = {"checkpoint": "ck", "synthetic-held-out": {"clips": [clip(35, 0.5)]},
+              "tum-fr3-long-office-household": {"frames": 17, "estimated_fx": 500.0}}
+    good = tmp_path / "focal.json"
+    good.write_text(json.dumps(report))
+    focal_by_fov.main([str(good)])
+    out = capsys.readouterr().out
+    assert "[synthetic-held-out]" in out and "1 clips" in out and "-0.69" in out and "tum" not in out
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"rows": []}))
+    with pytest.raises(SystemExit, match="has no synthetic clips"):
+        focal_by_fov.main([str(other)])
+    with pytest.raises(SystemExit, match="bands must be ascending"):
+        focal_by_fov.main([str(good), "--bands", "70", "50"])

@@ -1,0 +1,89 @@
+"""Where a model's focal error lies by field of view, from ``tools/measure_focal.py`` JSON.
+
+    python tools/focal_by_fov.py FOCAL.json [FOCAL.json ...] [--bands 50 70 90]
+
+Per clip, the true horizontal field of view is ``2 atan(W / (2 fx_true))`` (W the clip's width in pixels, fx the
+median true focal over its frames); clips are grouped into bands by it, and each band reports its clip count, the
+median of ``log(fx_estimated / fx_true)`` (below 0: focal too short, the view read too wide) and the median relative
+focal error. Why (stage 50, docs/training.md): a median over 48 clips hides that every field of view is pulled
+toward about 60 degrees; this shows which band decides the median. Every synthetic set in each file is reported
+(``synthetic-dynamic-v1``, ``synthetic-held-out``); the real TUM frames are one camera and are left out.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from d4rt.errors import UserError
+
+DEFAULT_BANDS = (50.0, 70.0, 90.0)
+
+
+def horizontal_fov_degrees(width: float, fx: float) -> float:
+    """Horizontal field of view in degrees of a pinhole camera ``width`` pixels wide with focal ``fx`` pixels."""
+    return math.degrees(2.0 * math.atan(width / (2.0 * fx)))
+
+
+def focal_by_fov(clips: list[dict], bands: tuple[float, ...] = DEFAULT_BANDS) -> list[dict]:
+    """Clips of one measure_focal set grouped by true horizontal FOV.
+
+    clips: each with ``size`` [H, W], ``true_fx_median`` and ``estimated_fx_median`` (pixels); bands: ascending
+    FOV edges in degrees. Returns one dict per band (len(bands) + 1, empty ones included): ``band`` (its label),
+    ``clips`` (count), ``median_log_ratio`` and ``median_focal_error`` (None when empty).
+    """
+    edges = [-math.inf, *bands, math.inf]
+    if any(b >= a for a, b in zip(edges[1:], edges[:-1])):
+        raise UserError(f"FOV bands must be ascending, got {list(bands)}")
+    rows = []
+    for low, high in zip(edges[:-1], edges[1:]):
+        picked = [c for c in clips if low <= horizontal_fov_degrees(c["size"][1], c["true_fx_median"]) < high]
+        ratios = np.log([c["estimated_fx_median"] / c["true_fx_median"] for c in picked])
+        label = f"< {high:g}" if low == -math.inf else f">= {low:g}" if high == math.inf else f"{low:g}-{high:g}"
+        rows.append({
+            "band": label, "clips": len(picked),
+            "median_log_ratio": float(np.median(ratios)) if picked else None,
+            "median_focal_error": float(np.median(np.abs(np.exp(ratios) - 1))) if picked else None,
+        })
+    return rows
+
+
+def synthetic_sets(report: dict) -> dict[str, list[dict]]:
+    """The per-clip lists of every synthetic set in one measure_focal JSON, by set name."""
+    return {name: value["clips"] for name, value in report.items() if isinstance(value, dict) and "clips" in value}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("reports", nargs="+", type=Path, help="tools/measure_focal.py JSON files")
+    parser.add_argument("--bands", nargs="+", type=float, default=list(DEFAULT_BANDS),
+                        help="ascending FOV edges in degrees (default: 50 70 90)")
+    args = parser.parse_args(argv)
+    for path in args.reports:
+        try:
+            report = json.loads(path.read_text())
+        except (OSError, ValueError) as error:
+            raise SystemExit(f"error: cannot read focal JSON {path}: {error}") from None
+        sets = synthetic_sets(report)
+        if not sets:
+            raise SystemExit(f"error: {path} has no synthetic clips (is it tools/measure_focal.py output?)")
+        for name, clips in sets.items():
+            try:
+                rows = focal_by_fov(clips, tuple(args.bands))
+            except UserError as error:
+                raise SystemExit(f"error: {error}") from None
+            print(f"{path} [{name}] {report.get('checkpoint', '')}")
+            for row in rows:
+                if row["clips"]:
+                    print(f"  FOV {row['band']:>7} deg: {row['clips']:2d} clips, median log(est/true fx) "
+                          f"{row['median_log_ratio']:+.2f}, median focal error {100 * row['median_focal_error']:.1f}%")
+                else:
+                    print(f"  FOV {row['band']:>7} deg:  0 clips")
+
+
+if __name__ == "__main__":
+    main()
