@@ -6,7 +6,10 @@ Per clip, the true horizontal field of view is ``2 atan(W / (2 fx_true))`` (W th
 median true focal over its frames); clips are grouped into bands by it, and each band reports its clip count, the
 median of ``log(fx_estimated / fx_true)`` (below 0: focal too short, the view read too wide) and the median relative
 focal error. Why (stage 50, docs/training.md): a median over 48 clips hides that every field of view is pulled
-toward about 60 degrees; this shows which band decides the median. Every synthetic set in each file is reported
+toward about 60 degrees; this shows which band decides the median. It also fits, over all clips of a set,
+``log(fx_est / W) = a + b log(fx_true / W)``: the slope b is the share of the true log-focal signal the model reads (1:
+every field of view told apart; 0: one focal for all), and the residual spread is the error left at slope 1.
+Every synthetic set in each file is reported
 (``synthetic-dynamic-v1``, ``synthetic-held-out``); the real TUM frames are one camera and are left out.
 """
 
@@ -52,6 +55,19 @@ def focal_by_fov(clips: list[dict], bands: tuple[float, ...] = DEFAULT_BANDS) ->
     return rows
 
 
+def focal_regression(clips: list[dict]) -> dict:
+    """Least-squares fit of ``log(fx_est / W)`` on ``log(fx_true / W)`` over ``clips`` (at least two, with two
+    different true focals): ``slope``, ``intercept``, ``correlation`` and ``residual_sd`` (of the fit, in log units)."""
+    true = np.log([c["true_fx_median"] / c["size"][1] for c in clips])
+    estimated = np.log([c["estimated_fx_median"] / c["size"][1] for c in clips])
+    if len(clips) < 2 or np.ptp(true) == 0:
+        raise UserError("a focal regression needs at least two clips with different true focal lengths")
+    slope, intercept = np.polyfit(true, estimated, 1)
+    residual = estimated - (intercept + slope * true)
+    return {"slope": float(slope), "intercept": float(intercept),
+            "correlation": float(np.corrcoef(true, estimated)[0, 1]), "residual_sd": float(residual.std())}
+
+
 def synthetic_sets(report: dict) -> dict[str, list[dict]]:
     """The per-clip lists of every synthetic set in one measure_focal JSON, by set name."""
     return {name: value["clips"] for name, value in report.items() if isinstance(value, dict) and "clips" in value}
@@ -83,6 +99,10 @@ def main(argv: list[str] | None = None) -> None:
                           f"{row['median_log_ratio']:+.2f}, median focal error {100 * row['median_focal_error']:.1f}%")
                 else:
                     print(f"  FOV {row['band']:>7} deg:  0 clips")
+            if len(clips) >= 2:
+                fit = focal_regression(clips)
+                print(f"  log(est fx / W) = {fit['intercept']:+.2f} + {fit['slope']:.2f} log(true fx / W): correlation "
+                      f"{fit['correlation']:.2f}, residual sd {fit['residual_sd']:.2f}")
 
 
 if __name__ == "__main__":

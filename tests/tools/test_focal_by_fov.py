@@ -34,6 +34,18 @@ def test_bands_by_true_fov_and_their_medians():
     assert focal_by_fov.horizontal_fov_degrees(128, 64) == pytest.approx(90.0)
 
 
+def test_regression_reads_the_share_of_the_focal_signal():
+    fovs = [30, 45, 60, 80, 100]
+    half = [clip(f, 1.0) for f in fovs]
+    for c in half:  # an estimate that keeps half of the log focal, around fx / W = 1
+        c["estimated_fx_median"] = c["size"][1] * (c["true_fx_median"] / c["size"][1]) ** 0.5
+    fit = focal_by_fov.focal_regression(half)
+    assert fit["slope"] == pytest.approx(0.5) and fit["intercept"] == pytest.approx(0.0, abs=1e-9)
+    assert fit["correlation"] == pytest.approx(1.0) and fit["residual_sd"] == pytest.approx(0.0, abs=1e-9)
+    with pytest.raises(focal_by_fov.UserError, match="at least two clips"):
+        focal_by_fov.focal_regression([clip(30, 1.0), clip(30, 2.0)])
+
+
 def test_command_reads_every_synthetic_set_and_refuses_other_json(tmp_path, capsys):
     report = {"checkpoint": "ck", "synthetic-held-out": {"clips": [clip(35, 0.5)]},
               "tum-fr3-long-office-household": {"frames": 17, "estimated_fx": 500.0}}
