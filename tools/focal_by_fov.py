@@ -8,9 +8,9 @@ median of ``log(fx_estimated / fx_true)`` (below 0: focal too short, the view re
 focal error. Why (stage 50, docs/training.md): a median over 48 clips hides that every field of view is pulled
 toward about 60 degrees; this shows which band decides the median. It also fits, over all clips of a set,
 ``log(fx_est / W) = a + b log(fx_true / W)``: the slope b is the share of the true log-focal signal the model reads (1:
-every field of view told apart; 0: one focal for all), and the residual spread is the error left at slope 1.
-Every synthetic set in each file is reported
-(``synthetic-dynamic-v1``, ``synthetic-held-out``); the real TUM frames are one camera and are left out.
+every field of view told apart; 0: one focal for all), and the residual spread is the error left at slope 1. Every
+synthetic set in each file is reported (``synthetic-dynamic-v1``, ``synthetic-held-out``); the real TUM frames are
+one camera and are left out.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ def focal_by_fov(clips: list[dict], bands: tuple[float, ...] = DEFAULT_BANDS) ->
     ``clips`` (count), ``median_log_ratio`` and ``median_focal_error`` (None when empty).
     """
     edges = [-math.inf, *bands, math.inf]
-    if any(b >= a for a, b in zip(edges[1:], edges[:-1])):
+    if any(high <= low for low, high in zip(edges[:-1], edges[1:])):
         raise UserError(f"FOV bands must be ascending, got {list(bands)}")
     rows = []
     for low, high in zip(edges[:-1], edges[1:]):
