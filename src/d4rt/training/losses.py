@@ -149,9 +149,7 @@ def mean_depth(points: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     points: (B, N, 3) in each query's camera t_cam; mask: (B, N) bool. Returns (B,), at least a tiny
     positive number (a clip without any valid query gets that minimum; its queries are masked anyway).
     """
-    depth = torch.where(mask, points[..., 2].abs(), torch.zeros_like(points[..., 2]))
-    count = mask.sum(1).clamp_min(1).to(points.dtype)
-    return (depth.sum(1) / count).clamp_min(_MIN_SCALE)
+    return masked_mean_per_clip(points[..., 2].abs(), mask).clamp_min(_MIN_SCALE)
 
 
 def masked_mean(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -214,7 +212,7 @@ def ray_angle_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
 def masked_mean_per_clip(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """Mean of ``values`` (B, N) over ``mask`` (B, N) bool within each clip: (B,); 0 for an empty clip."""
     picked = torch.where(mask, values, torch.zeros_like(values))
-    return picked.sum(1) / mask.sum(1).clamp_min(1)
+    return picked.sum(1) / mask.sum(1).clamp_min(1).to(values.dtype)
 
 
 def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
