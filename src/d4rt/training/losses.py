@@ -66,7 +66,12 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   by about 5% of their depth, less than the depth error L3D is busy with, so narrow views' focal stays
   pulled toward the mean field of view (stage 50, docs/training.md). Divided by the clip's own angular
   spread, the same focal error costs the same at every field of view; the angle ignores depth, so the
-  term does not compete with L3D over it.
+  term does not compete with L3D over it. ``ray_angle_spread="geometric"`` divides by the geometric mean of
+  the true and the predicted spread instead. Why: over the true spread alone, angles read k times too wide
+  cost a clip about ``|k - 1|``, so reading a view twice too wide (focal halved) costs 1 and twice too narrow
+  0.5; a model unsure of the field of view then hedges narrow, its focal long (at weight 2, stages 52-53 read
+  every focal 7-14% longer than stage 51 at weight 1, docs/training.md). Over both spreads
+  the cost is ``|k - 1| / sqrt(k) = 2 sinh(|log k| / 2)``, the same for k and 1 / k.
 """
 
 from __future__ import annotations
@@ -83,6 +88,8 @@ from d4rt.geometry.transforms import invert_rigid
 PREDICTION_KEYS = ("points", "uv", "visibility_logit", "motion", "normals", "confidence")
 # How the pose loss compares translations (LossConfig.pose_translation).
 POSE_TRANSLATION_ERRORS = ("l1", "squared")
+# What the ray-angle term divides by (LossConfig.ray_angle_spread).
+RAY_ANGLE_SPREADS = ("target", "geometric")
 # Guards a degenerate all-zero prediction only; real scenes are many orders of magnitude deeper.
 _MIN_SCALE = 1e-12
 # Lowest normalised depth the log-depth term takes a log of (1/1000 of the clip's mean depth).
@@ -104,6 +111,9 @@ class LossConfig:
         by 1 / L3D: the hardest queries (far sky, whose depth then decides a sequence's L1 depth alignment)
         learn least. The confidence keeps its meaning (it still ranks queries by their expected error).
     weight_log_depth: (not in paper) weight of the scale-invariant log-depth term (module docstring); 0 = off.
+    ray_angle_spread: (not in paper) what the ray-angle term divides each clip's angles by: "target", its
+        true points' mean angle off the axis, or "geometric", the geometric mean of that and the
+        prediction's (module docstring).
     """
 
     weight_3d: float = 1.0
@@ -120,6 +130,7 @@ class LossConfig:
     weight_pose_translation: float | None = None
     weight_log_depth: float = 0.0
     weight_ray_angle: float = 0.0
+    ray_angle_spread: str = "target"
 
     def validate(self) -> None:
         optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
@@ -132,6 +143,9 @@ class LossConfig:
         if self.pose_translation not in POSE_TRANSLATION_ERRORS:
             raise UserError(f"loss pose_translation must be one of {', '.join(POSE_TRANSLATION_ERRORS)}, "
                             f"got {self.pose_translation!r}")
+        if self.ray_angle_spread not in RAY_ANGLE_SPREADS:
+            raise UserError(f"loss ray_angle_spread must be one of {', '.join(RAY_ANGLE_SPREADS)}, "
+                            f"got {self.ray_angle_spread!r}")
         if self.confidence_stop_gradient and not self.confidence_weighting:
             raise UserError("loss confidence_stop_gradient needs confidence_weighting (there is no confidence term)")
         if self.confidence_weighting and self.weight_confidence <= 0:
@@ -188,14 +202,15 @@ def vector_angle(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return torch.atan2(torch.linalg.vector_norm(cross, dim=-1), (a * b).sum(-1))
 
 
-def ray_angle_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
+def ray_angle_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor, spread: str = "target"
                    ) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-query ray-angle error (module docstring) and where it is defined.
 
     pred, target: (B, N, 3) in each query's camera t_cam; mask: (B, N) bool (queries with a true point).
     Returns ``(error (B, N), defined (B, N) bool)``: the angle between ``pred`` and ``target`` divided by the
-    clip's mean angle off the optical axis of its targets in front of camera t_cam; ``defined`` is ``mask``
-    where neither point is at the camera centre.
+    clip's mean angle off the optical axis of its targets in front of camera t_cam (``spread="target"``), or
+    by the geometric mean of that and the same queries' predicted mean angle (``"geometric"``); ``defined``
+    is ``mask`` where neither point is at the camera centre.
     """
     defined = mask & (target.norm(dim=-1) > 0) & (pred.detach().norm(dim=-1) > 0)
     axis = torch.zeros_like(target)
@@ -205,8 +220,11 @@ def ray_angle_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
     target = torch.where(defined[..., None], target, axis)
     pred = torch.where(defined[..., None], pred, axis)
     in_front = defined & (target[..., 2] > 0)
-    spread = masked_mean_per_clip(vector_angle(target, axis), in_front).clamp_min(_MIN_RAY_SPREAD)
-    return vector_angle(pred, target) / spread[:, None], defined
+    divisor = masked_mean_per_clip(vector_angle(target, axis), in_front).clamp_min(_MIN_RAY_SPREAD)
+    if spread == "geometric":
+        predicted = masked_mean_per_clip(vector_angle(pred, axis), in_front).clamp_min(_MIN_RAY_SPREAD)
+        divisor = torch.sqrt(divisor * predicted)
+    return vector_angle(pred, target) / divisor[:, None], defined
 
 
 def masked_mean_per_clip(values: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -284,7 +302,7 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         optional_terms["log_depth"] = masked_mean(log_depth, in_front)
         total = total + config.weight_log_depth * optional_terms["log_depth"]
     if config.weight_ray_angle > 0:
-        ray_angle, defined = ray_angle_loss(p["points"], target_points, valid)
+        ray_angle, defined = ray_angle_loss(p["points"], target_points, valid, config.ray_angle_spread)
         optional_terms["ray_angle"] = masked_mean(ray_angle, defined)
         total = total + config.weight_ray_angle * optional_terms["ray_angle"]
     terms = {
