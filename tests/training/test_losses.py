@@ -176,31 +176,30 @@ def test_ray_angle_term_prices_a_focal_error_alike_at_every_field_of_view():
     assert l3d_costs[1] > 2.5 * l3d_costs[0]
 
 
+ANGLES = torch.linspace(0.01, 0.3, 50)  # radians off the axis
+
+
+def rays_at(scale: float) -> torch.Tensor:
+    """Unit rays in the x-z plane at ``scale`` times ANGLES off the axis: (1, 50, 3)."""
+    return torch.stack([torch.sin(scale * ANGLES), torch.zeros_like(ANGLES), torch.cos(scale * ANGLES)], -1)[None]
+
+
 def ray_angle_hedge(spread: str) -> float:
     """The angle scale c a model unsure whether a clip's true angles are 0.5x or 2x (even odds) should answer
     to minimise the ray-angle term: the argmin over a grid of the term's mean over both cases."""
-    angles = torch.linspace(0.01, 0.3, 50)  # radians off the axis, in the x-z plane
-
-    def rays(scale: float) -> torch.Tensor:
-        return torch.stack([torch.sin(scale * angles), torch.zeros_like(angles), torch.cos(scale * angles)], -1)[None]
-
     mask = torch.ones(1, 50, dtype=torch.bool)
     grid = torch.logspace(-1, 1, 81, base=2.0).tolist()  # 0.5 ... 2
-    costs = [sum(ray_angle_loss(rays(c), rays(s), mask, spread)[0].mean().item() for s in (0.5, 2.0)) for c in grid]
+    costs = [sum(ray_angle_loss(rays_at(c), rays_at(s), mask, spread)[0].mean().item() for s in (0.5, 2.0))
+             for c in grid]
     return grid[costs.index(min(costs))]
 
 
 def test_ray_angle_geometric_spread_prices_too_wide_and_too_narrow_alike():
     """Over the true spread alone, reading angles 2x too wide costs twice what 0.5x costs, so an unsure model
     hedges all the way narrow (focal long); over both spreads the costs are equal and the hedge is centred."""
-    angles = torch.linspace(0.01, 0.3, 50)
-    target = torch.stack([torch.sin(angles), torch.zeros_like(angles), torch.cos(angles)], -1)[None]
     mask = torch.ones(1, 50, dtype=torch.bool)
-    costs = {}
-    for spread in ("target", "geometric"):
-        for k in (0.5, 2.0):
-            pred = torch.stack([torch.sin(k * angles), torch.zeros_like(angles), torch.cos(k * angles)], -1)[None]
-            costs[spread, k] = ray_angle_loss(pred, target, mask, spread)[0].mean().item()
+    costs = {(spread, k): ray_angle_loss(rays_at(k), rays_at(1.0), mask, spread)[0].mean().item()
+             for spread in ("target", "geometric") for k in (0.5, 2.0)}
     assert costs["target", 2.0] == pytest.approx(2 * costs["target", 0.5], rel=1e-3)
     assert costs["geometric", 2.0] == pytest.approx(costs["geometric", 0.5], rel=1e-3)
     assert ray_angle_hedge("target") == pytest.approx(0.5)

@@ -70,8 +70,8 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   the true and the predicted spread instead. Why: over the true spread alone, angles read k times too wide
   cost a clip about ``|k - 1|``, so reading a view twice too wide (focal halved) costs 1 and twice too narrow
   0.5; a model unsure of the field of view then hedges narrow, its focal long (at weight 2, stages 52-53 read
-  every focal 7-14% longer than stage 51 at weight 1, docs/training.md). Over both spreads
-  the cost is ``|k - 1| / sqrt(k) = 2 sinh(|log k| / 2)``, the same for k and 1 / k.
+  every focal 7-14% longer than stage 51 at weight 1, docs/training.md). Over both spreads the cost is
+  ``|k - 1| / sqrt(k) = 2 sinh(|log k| / 2)``, the same for k and 1 / k.
 """
 
 from __future__ import annotations
