@@ -206,6 +206,8 @@ def test_ray_angle_geometric_spread_prices_too_wide_and_too_narrow_alike():
     assert ray_angle_hedge("geometric") == pytest.approx(1.0)
     with pytest.raises(UserError, match="ray_angle_spread must be one of target, geometric"):
         LossConfig(ray_angle_spread="predicted").validate()
+    with pytest.raises(UserError, match="ray-angle spread must be one of target, geometric"):
+        ray_angle_loss(rays_at(1.0), rays_at(1.0), mask, "geometic")
 
 
 @pytest.mark.parametrize("spread", ["target", "geometric"])

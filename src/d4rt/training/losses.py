@@ -220,6 +220,8 @@ def ray_angle_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor,
     target = torch.where(defined[..., None], target, axis)
     pred = torch.where(defined[..., None], pred, axis)
     in_front = defined & (target[..., 2] > 0)
+    if spread not in RAY_ANGLE_SPREADS:  # a typo must not silently train the other variant
+        raise UserError(f"ray-angle spread must be one of {', '.join(RAY_ANGLE_SPREADS)}, got {spread!r}")
     divisor = masked_mean_per_clip(vector_angle(target, axis), in_front).clamp_min(_MIN_RAY_SPREAD)
     if spread == "geometric":
         predicted = masked_mean_per_clip(vector_angle(pred, axis), in_front).clamp_min(_MIN_RAY_SPREAD)
