@@ -29,6 +29,11 @@
 # ATE mean is at most that many times the start's (default 1: not worse). Why: the promise is ATE <= 2x pycolmap's on
 # the benchmark and the shipped model is at 1.36x; "not worse on the mean of 48 clips" was stricter than the promise
 # and a few clips decided it (stage 48). The benchmark's eval still checks that no met target is lost.
+# S_BY=focal in the environment (stage 58 on) chooses S differently in step 1: of the judged checkpoints whose held-out
+# adjacent ATE mean is at most CAMERA_TOLERANCE times the start's, the one with the lowest held-out mean focal error
+# (tools/measure_focal.py --held-out, measured on the second core as each checkpoint is written). Why: stage 57's S,
+# chosen by camera, read focal worse than its later checkpoints on every held-out figure but the median, which moves
+# by a few points with the draw of 48 clips; the mean error follows the fit's slope and spread.
 # Resumable (stage 41 on): every camera probe is kept per checkpoint in $J/probe-cache (the figures of one model do not
 # depend on the others probed with it; the judged checkpoints and the start are probed on the second core while
 # training runs), and a stopped judge started again skips each average, focal measurement and eval it already wrote.
@@ -41,7 +46,7 @@ EACH=${2:-}
 SOUP=()
 [ "${3:-}" = --soup-of ] && SOUP=("${@:4}")
 cd /work/main
-RUN=/work/runs/ship-tiny-stage$N
+export RUN=/work/runs/ship-tiny-stage$N
 export J=/work/judge$N
 probe_once() {  # CHECKPOINT: its held-out camera probe, once (the figures of a model do not depend on the others probed)
   local cache=$J/probe-cache/$(echo "$1" | tr / _).json
@@ -71,6 +76,10 @@ P
 focal_once() {  # measure_focal.py ARGS ... --out FILE: skipped when FILE exists (a judge resumed after a stop)
   [ -f "${@: -1}" ] || python tools/measure_focal.py "$@" >> $J/judge.log 2>&1
 }
+focal_of_checkpoint() {  # CHECKPOINT (a judged one of $RUN): its held-out focal, once, as focal-held-out-step-N[-ema].json
+  local name=$(echo "${1#$RUN/checkpoints/}" | tr / -)
+  focal_once --held-out --checkpoint $1 --out $J/focal-held-out-$name.json
+}
 if [ ${#SOUP[@]} -gt 0 ]; then
   S=("${SOUP[@]}")
   echo "S = the equal average of ${SOUP[*]} $(date -u)" >> $J/judge.log
@@ -85,14 +94,38 @@ else
   all_written() { for c in $CK; do [ -f $c/model.safetensors ] || return 1; done; }
   until all_written; do
     for c in $J/start $CK; do [ -f $c/model.safetensors ] && probe_once $c; done
+    if [ "${S_BY:-camera}" = focal ]; then
+      for c in $CK; do [ -f $c/model.safetensors ] && focal_of_checkpoint $c; done
+    fi
     sleep 20
   done
   [ -f $J/camera-probe-24-frames.json ] || echo "training ended $(date -u)" >> $J/judge.log
   probe_merged $J/camera-probe-24-frames.json $CK
-  S=$(python -c "
+  if [ "${S_BY:-camera}" = focal ]; then
+    for c in $CK; do focal_of_checkpoint $c; done
+    S=$(python - $CK 2>> $J/judge.log <<'P'
+import json, os, sys
+J, run = os.environ['J'], os.environ['RUN']
+ate = lambda d, k: d['models'][k]['trajectory_ate']['adjacent']['mean']
+start = json.load(open(f"{J}/probe-cache/{(J + '/start').replace('/', '_')}.json"))
+limit = float(os.environ.get('CAMERA_TOLERANCE', '1')) * ate(start, J + '/start')
+d = json.load(open(J + '/camera-probe-24-frames.json'))
+kept = [c for c in sys.argv[1:] if ate(d, c) <= limit]
+name = lambda c: c[len(run + '/checkpoints/'):].replace('/', '-')
+error = {c: json.load(open(f"{J}/focal-held-out-{name(c)}.json"))['synthetic-held-out']['mean_focal_error'] for c in kept}
+for c in kept:
+    print(f"{c}: held-out adjacent ATE {ate(d, c):.4f} (limit {limit:.4f}), mean focal error {error[c]:.4f}",
+          file=sys.stderr)
+print(min(kept, key=error.get) if kept else 'none')
+P
+)
+    [ "$S" = none ] && { echo "stopped: no judged checkpoint kept the start's camera" >> $J/judge.log; exit 0; }
+  else
+    S=$(python -c "
 import json, os
 d=json.load(open(os.environ['J'] + '/camera-probe-24-frames.json'))
 print(min(d['models'], key=lambda k: d['models'][k]['trajectory_ate']['adjacent']['mean']))")
+  fi
   echo "S=$S $(date -u)" >> $J/judge.log
 fi
 for w in $AVERAGE_WEIGHTS; do
