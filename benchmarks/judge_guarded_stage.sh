@@ -46,7 +46,7 @@ EACH=${2:-}
 SOUP=()
 [ "${3:-}" = --soup-of ] && SOUP=("${@:4}")
 cd /work/main
-export RUN=/work/runs/ship-tiny-stage$N
+RUN=/work/runs/ship-tiny-stage$N
 export J=/work/judge$N
 probe_once() {  # CHECKPOINT: its held-out camera probe, once (the figures of a model do not depend on the others probed)
   local cache=$J/probe-cache/$(echo "$1" | tr / _).json
@@ -76,10 +76,10 @@ P
 focal_once() {  # measure_focal.py ARGS ... --out FILE: skipped when FILE exists (a judge resumed after a stop)
   [ -f "${@: -1}" ] || python tools/measure_focal.py "$@" >> $J/judge.log 2>&1
 }
-focal_of_checkpoint() {  # CHECKPOINT (a judged one of $RUN): its held-out focal, once, as focal-held-out-step-N[-ema].json
-  local name=$(echo "${1#$RUN/checkpoints/}" | tr / -)
-  focal_once --held-out --checkpoint $1 --out $J/focal-held-out-$name.json
+focal_file() {  # CHECKPOINT (a judged one of $RUN): where its held-out focal is kept, focal-held-out-step-N[-ema].json
+  echo $J/focal-held-out-$(echo "${1#$RUN/checkpoints/}" | tr / -).json
 }
+focal_of_checkpoint() { focal_once --held-out --checkpoint $1 --out $(focal_file $1); }  # once
 if [ ${#SOUP[@]} -gt 0 ]; then
   S=("${SOUP[@]}")
   echo "S = the equal average of ${SOUP[*]} $(date -u)" >> $J/judge.log
@@ -103,16 +103,16 @@ else
   probe_merged $J/camera-probe-24-frames.json $CK
   if [ "${S_BY:-camera}" = focal ]; then
     for c in $CK; do focal_of_checkpoint $c; done
-    S=$(python - $CK 2>> $J/judge.log <<'P'
+    S=$(python - $(for c in $CK; do echo $c=$(focal_file $c); done) 2>> $J/judge.log <<'P'
 import json, os, sys
-J, run = os.environ['J'], os.environ['RUN']
+J = os.environ['J']
 ate = lambda d, k: d['models'][k]['trajectory_ate']['adjacent']['mean']
 start = json.load(open(f"{J}/probe-cache/{(J + '/start').replace('/', '_')}.json"))
 limit = float(os.environ.get('CAMERA_TOLERANCE', '1')) * ate(start, J + '/start')
 d = json.load(open(J + '/camera-probe-24-frames.json'))
-kept = [c for c in sys.argv[1:] if ate(d, c) <= limit]
-name = lambda c: c[len(run + '/checkpoints/'):].replace('/', '-')
-error = {c: json.load(open(f"{J}/focal-held-out-{name(c)}.json"))['synthetic-held-out']['mean_focal_error'] for c in kept}
+focal_files = dict(arg.split('=', 1) for arg in sys.argv[1:])  # checkpoint -> its held-out focal JSON
+kept = [c for c in focal_files if ate(d, c) <= limit]
+error = {c: json.load(open(focal_files[c]))['synthetic-held-out']['mean_focal_error'] for c in kept}
 for c in kept:
     print(f"{c}: held-out adjacent ATE {ate(d, c):.4f} (limit {limit:.4f}), mean focal error {error[c]:.4f}",
           file=sys.stderr)
