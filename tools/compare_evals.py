@@ -12,7 +12,10 @@ interval over the draws, the share of draws in which NEW is better, and on how m
 says how much the benchmark's own sequences could move a difference, not how the models would compare on other
 scenes (that needs held-out clips). Pose AUC and the registered fraction pool frames, not sequences, and are refused.
 
-It also reads ``tools/depth_probe.py`` JSON (held-out clips; ``--methods`` names a checkpoint of each). JSON
+It also reads ``tools/depth_probe.py`` JSON (held-out clips; ``--methods`` names a checkpoint of each) and
+``tools/measure_focal.py`` JSON (one checkpoint's ``focal_error`` per synthetic clip, compared as a plain mean over
+clips; ``--metric focal_error``). ``--margin M`` adds a non-inferiority verdict: NEW is not worse when the upper end
+of the 95% interval of NEW - BASE is below M (for a lower-is-better metric; above -M for a higher-is-better one). JSON
 written before ``valid_pixels`` was recorded per sequence (or per probe clip) has no depth weights:
 ``--unweighted`` then averages the sequences equally (said in the output), which is not the benchmark's pooling.
 """
@@ -28,7 +31,7 @@ import numpy as np
 from d4rt.errors import UserError
 
 # Metrics where a lower value is better; every other per-sequence metric is better higher.
-LOWER_IS_BETTER = ("abs_rel", "ate", "rpe_trans", "rpe_rot", "pc_l1", "world_l1")
+LOWER_IS_BETTER = ("abs_rel", "focal_error", "ate", "rpe_trans", "rpe_rot", "pc_l1", "world_l1")
 # Aggregates that are not a mean or a pixel-weighted mean of the per-sequence values.
 NOT_PER_SEQUENCE = ("auc@", "registered")
 
@@ -64,9 +67,23 @@ def paired_bootstrap(base: np.ndarray, new: np.ndarray, weights: np.ndarray, sam
     }
 
 
+def not_worse(result: dict, margin: float, lower_is_better: bool = True) -> bool:
+    """Non-inferiority: the 95% interval of NEW - BASE (from ``paired_bootstrap``) lies below ``margin`` (above
+    ``-margin`` when higher is better), so NEW is at most ``margin`` worse with 97.5% confidence."""
+    if margin < 0:
+        raise UserError(f"the margin must be >= 0, got {margin}")
+    return result["high"] < margin if lower_is_better else result["low"] > -margin
+
+
 def method_rows(results: dict, method: str, path: str) -> dict[str, dict]:
-    """Sequence name -> row (``metrics``, ``valid_pixels``) of one method of a ``d4rt eval`` JSON, or of one
-    checkpoint of a ``tools/depth_probe.py`` JSON (its ``models``, named by checkpoint path)."""
+    """Sequence name -> row (``metrics``, ``valid_pixels``) of one method of a ``d4rt eval`` JSON, of one
+    checkpoint of a ``tools/depth_probe.py`` JSON (its ``models``, named by checkpoint path), or of the synthetic
+    clip set of a ``tools/measure_focal.py`` JSON (one checkpoint; ``method`` is not used)."""
+    clip_sets = [key for key, value in results.items() if isinstance(value, dict) and "clips" in value]
+    if "checkpoint" in results and clip_sets:  # a focal measurement: one clip set per file
+        if len(clip_sets) != 1:
+            raise UserError(f"{path}: more than one clip set ({clip_sets}); compare one at a time")
+        return {row["name"]: {"metrics": row} for row in results[clip_sets[0]]["clips"]}
     if "models" in results:  # a depth probe: one row per held-out clip, its metrics inline
         if method not in results["models"]:
             raise UserError(f"{path}: no checkpoint {method!r} (it has {list(results['models'])})")
@@ -119,6 +136,7 @@ def main() -> None:
                         help="a method each, e.g. two checkpoints of one depth-probe JSON given twice")
     parser.add_argument("--samples", type=int, default=10000)
     parser.add_argument("--unweighted", action="store_true", help="average sequences equally (older JSON)")
+    parser.add_argument("--margin", type=float, help="non-inferiority margin: exit 1 unless NEW is not worse by it")
     args = parser.parse_args()
     try:
         loaded = []
@@ -136,6 +154,10 @@ def main() -> None:
           f"NEW - BASE = {r['difference']:+.4f}, 95% interval [{r['low']:+.4f}, {r['high']:+.4f}]; "
           f"NEW better in {r['share_new_better']:.1%} of {args.samples:,} paired resamplings and on "
           f"{r['new_better_on']} of {r['sequences']} sequences")
+    if args.margin is not None:
+        ok = not_worse(r, args.margin, r["metric"].startswith(LOWER_IS_BETTER))
+        print(f"non-inferiority at margin {args.margin:g}: {'PASS' if ok else 'FAIL'}")
+        raise SystemExit(0 if ok else 1)
 
 
 if __name__ == "__main__":

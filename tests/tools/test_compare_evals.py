@@ -88,3 +88,29 @@ def test_two_checkpoints_of_one_depth_probe_compare_clip_by_clip():
     assert r["difference"] == pytest.approx(-0.1) and r["new_better_on"] == 2 and r["method"] == "old vs new"
     with pytest.raises(UserError, match="no checkpoint 'other'"):
         compare_evals.compare(probe, probe, "abs_rel[scale&shift]", ("old", "other"))
+
+
+def focal(errors: dict[str, float], clip_set: str = "synthetic-dynamic-v1") -> dict:
+    """A ``tools/measure_focal.py`` JSON of one checkpoint."""
+    clips = [{"name": name, "size": [64, 64], "focal_error": e} for name, e in errors.items()]
+    return {"checkpoint": "ck", clip_set: {"clips": clips, "median_focal_error": float(np.median(list(errors.values())))},
+            "tum-fr3-long-office-household": {"relative_error": 0.1}}
+
+
+def test_focal_errors_compare_clip_by_clip_with_a_non_inferiority_margin():
+    rng = np.random.default_rng(0)
+    names = [f"clip_{i:02d}" for i in range(48)]
+    base = dict(zip(names, rng.uniform(0.0, 0.5, 48)))
+    slightly_worse = {name: e + 0.01 for name, e in base.items()}
+    r = compare_evals.compare(focal(base), focal(slightly_worse), "focal_error", samples=500)
+    assert r["weighting"] == "equal" and r["difference"] == pytest.approx(0.01) and r["new_better_on"] == 0
+    # 1 point worse on every clip: inside a 5-point margin, outside a half-point one.
+    assert compare_evals.not_worse(r, 0.05) and not compare_evals.not_worse(r, 0.005)
+    # Noise of +-0.3 on a few clips widens the interval past the margin.
+    noisy = {name: e + (0.3 if i % 4 == 0 else 0.0) for i, (name, e) in enumerate(base.items())}
+    assert not compare_evals.not_worse(compare_evals.compare(focal(base), focal(noisy), "focal_error",
+                                                             samples=500), 0.05)
+    with pytest.raises(UserError, match="more than one clip set"):
+        compare_evals.compare(dict(focal(base), **{"synthetic-held-out": {"clips": []}}), focal(base), "focal_error")
+    with pytest.raises(UserError, match="different sequences"):
+        compare_evals.compare(focal(base), focal(dict(list(base.items())[:47])), "focal_error")
