@@ -29,6 +29,10 @@
 # ATE mean is at most that many times the start's (default 1: not worse). Why: the promise is ATE <= 2x pycolmap's on
 # the benchmark and the shipped model is at 1.36x; "not worse on the mean of 48 clips" was stricter than the promise
 # and a few clips decided it (stage 48). The benchmark's eval still checks that no met target is lost.
+# FOCAL_GATE=noninferior (stage 59 on, by hand in stage 59; see docs/training.md) makes step 3's synthetic condition
+# "not worse than the shipped weights clip by clip": the upper end of the 95% paired-bootstrap interval of the mean
+# per-clip focal error difference below 0.05 (tools/compare_evals.py --metric focal_error --margin 0.05). Why: the
+# median of 48 clips moves by about 10 points with the draw of clips, and the shipped weights meet the target by 2.3.
 # S_BY=focal in the environment (stage 58 on) chooses S differently in step 1: of the judged checkpoints whose held-out
 # adjacent ATE mean is at most CAMERA_TOLERANCE times the start's, the one with the lowest held-out mean focal error
 # (tools/measure_focal.py --held-out, measured on the second core as each checkpoint is written). Why: stage 57's S,
@@ -185,13 +189,24 @@ else
 fi
 [ -d $J/candidate ] || cp -r $J/avg-$W $J/candidate
 focal_once --checkpoint $J/candidate --out $J/focal.json
-if [ "${FOCAL_GATE:-shipped}" = target ]; then
-  GATE_REF=0.20; GATE_LABEL="focal gate against the 20% target"
+SHIPPED_FOCAL=/work/main/docs/model-card/focal.json
+if [ "${FOCAL_GATE:-shipped}" = noninferior ]; then
+  echo "focal gate: not worse than the shipped weights clip by clip (margin 0.05), TUM within 20%" >> $J/judge.log
+  # The 20% target is still reported (median below); it no longer decides.
+  focal_below $J/focal.json 0.20 synthetic-dynamic-v1 "the 20% target (reported, not the gate)" || true
+  if python tools/compare_evals.py $SHIPPED_FOCAL $J/focal.json --metric focal_error --margin 0.05 >> $J/judge.log &&
+     python -c "import json, sys; sys.exit(abs(json.load(open('$J/focal.json'))['tum-fr3-long-office-household']['relative_error']) > 0.20)"
+  then echo PASS > $J/gate; else echo FAIL > $J/gate; fi
+  echo "focal gate: $(cat $J/gate)" >> $J/judge.log
 else
-  GATE_REF=/work/main/docs/model-card/focal.json; GATE_LABEL="focal gate against shipped"
+  if [ "${FOCAL_GATE:-shipped}" = target ]; then
+    GATE_REF=0.20; GATE_LABEL="focal gate against the 20% target"
+  else
+    GATE_REF=$SHIPPED_FOCAL; GATE_LABEL="focal gate against shipped"
+  fi
+  if focal_below $J/focal.json $GATE_REF synthetic-dynamic-v1 "$GATE_LABEL"
+  then echo PASS > $J/gate; else echo FAIL > $J/gate; fi
 fi
-if focal_below $J/focal.json $GATE_REF synthetic-dynamic-v1 "$GATE_LABEL"
-then echo PASS > $J/gate; else echo FAIL > $J/gate; fi
 if [ "$(cat $J/gate)" = PASS ] && [ ! -f $J/eval.json ]; then
   d4rt eval --benchmark synthetic-dynamic-v1 --checkpoint $J/candidate --baseline oracle --baseline constant-depth \
      --out $J/eval.json --no-progress > $J/eval.md 2>> $J/judge.log
