@@ -116,6 +116,56 @@ def test_cli_eval_with_a_checkpoint(tmp_path, tiny_checkpoint, capsys):
         assert image.size[0] > 1000
 
 
+def test_a_stopped_eval_resumes_to_the_same_json(tmp_path, tiny_checkpoint, monkeypatch, capsys):
+    """Rows are kept as they finish; --resume reuses them (without predicting again) and writes the same JSON."""
+    from d4rt.evaluation import harness
+
+    data = tmp_path / "clips"
+    for i in range(3):
+        render_clip(i, 4, 24, 32, camera_motion="truck", num_objects=3).save(data / f"clip_{i}.npz")
+    args = ["eval", "--data", str(data), "--checkpoint", str(tiny_checkpoint), "--no-progress"]
+    straight = tmp_path / "straight.json"
+    assert main(args + ["--out", str(straight)]) == 0
+    assert not (tmp_path / "straight.json.partial").exists()  # removed once the JSON is written
+
+    # A run killed while scoring the third clip: its first two clips' rows are on disk.
+    out = tmp_path / "stopped.json"
+    evaluate = harness.evaluate_sequence
+    def killed_on_clip_2(benchmark, sequence, prediction):
+        if sequence.name == "clip_2":
+            raise KeyboardInterrupt
+        return evaluate(benchmark, sequence, prediction)
+    monkeypatch.setattr(harness, "evaluate_sequence", killed_on_clip_2)
+    assert main(args + ["--out", str(out)]) == 130  # Ctrl-C: "d4rt eval: interrupted"
+    monkeypatch.setattr(harness, "evaluate_sequence", evaluate)
+    assert not out.exists() and len(list((tmp_path / "stopped.json.partial").glob("*.json"))) == 1 + 2 * 3
+
+    scored = []
+    def counted(benchmark, sequence, prediction):
+        scored.append(sequence.name)
+        return evaluate(benchmark, sequence, prediction)
+    monkeypatch.setattr(harness, "evaluate_sequence", counted)
+    capsys.readouterr()
+    assert main(args + ["--out", str(out), "--resume"]) == 0
+    assert scored == ["clip_2"] * 3 and "6 finished rows reused" in capsys.readouterr().out
+    assert json.loads(out.read_text())["methods"] == json.loads(straight.read_text())["methods"]
+
+    # Rows of another checkpoint are refused in one line, not mixed in.
+    monkeypatch.setattr(harness, "evaluate_sequence", killed_on_clip_2)
+    assert main(args + ["--out", str(out)]) == 130
+    other = tmp_path / "other"
+    torch.manual_seed(1)
+    D4RT(D4RTConfig.preset("tiny")).save_pretrained(other)
+    capsys.readouterr()
+    assert main(["eval", "--data", str(data), "--checkpoint", str(other), "--out", str(out), "--resume"]) == 2
+    assert "holds rows of a different d4rt (its checkpoint or camera recipe changed)" in capsys.readouterr().err
+    # Without --resume a stale folder is cleared, not reused.
+    monkeypatch.setattr(harness, "evaluate_sequence", counted)
+    scored.clear()
+    assert main(["eval", "--data", str(data), "--checkpoint", str(other), "--out", str(out), "--no-progress"]) == 0
+    assert len(scored) == 9
+
+
 def test_confidence_error_samples_follow_the_sequence_alignment():
     from d4rt.evaluation.harness import confidence_error_samples
     from d4rt.evaluation.metrics.depth import evaluate_depth

@@ -28,6 +28,9 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--out", type=Path, help="JSON results file (default: ./d4rt-eval-<benchmark>.json)")
     p.add_argument("--limit", type=int, help="evaluate only the first N sequences")
     p.add_argument("--device", default="cpu", help="torch device for the model")
+    p.add_argument("--resume", action="store_true",
+                   help="reuse the rows a stopped run of the same evaluation left in OUT.partial/ (each finished "
+                        "sequence is kept there until OUT is written)")
     p.add_argument("--pose-pairs", choices=POSE_PAIRS,
                    help="the model's camera recipe: each frame against the window's 'first' camera (the paper's) "
                         "or against the previous frame, chained ('adjacent'); default: the model's own choice "
@@ -40,6 +43,7 @@ def run(args) -> int:
     from d4rt.evaluation.baselines import make_baseline
     from d4rt.evaluation.benchmarks import folder_benchmark, get_benchmark
     from d4rt.evaluation.harness import run_benchmark
+    from d4rt.evaluation.partial_results import PartialResults, checkpoint_fingerprint, partial_folder
     from d4rt.evaluation.predictions import d4rt_predictor
     from d4rt.evaluation.report import to_markdown, write_json
 
@@ -57,10 +61,18 @@ def run(args) -> int:
         baselines = ["oracle"] + (["constant-depth"] if "depth" in benchmark.tasks else [])
     predictors = ([d4rt_predictor(args.checkpoint, args.device, args.pose_pairs)] if args.checkpoint else [])
     predictors += [make_baseline(name) for name in dict.fromkeys(baselines)]
-    results = run_benchmark(benchmark, predictors, args.data, args.limit)
-    print(to_markdown(benchmark, results))
     out = args.out or Path(f"d4rt-eval-{benchmark.name.replace(':', '-').replace('/', '-')}.json")
+    fingerprints = {p.name: p.name for p in predictors}
+    if args.checkpoint:
+        fingerprints[predictors[0].name] = checkpoint_fingerprint(args.checkpoint, args.pose_pairs)
+    store = PartialResults(partial_folder(out), {"benchmark": benchmark.name, "data": str(args.data)},
+                           fingerprints, args.resume)
+    results = run_benchmark(benchmark, predictors, args.data, args.limit, store=store)
+    if args.resume:
+        print(f"--resume: {store.reused} finished rows reused from {store.folder}")
+    print(to_markdown(benchmark, results))
     print(f"wrote {write_json(out, benchmark, results)}")
+    store.finish()
     if "depth" in benchmark.tasks and benchmark.depth_alignments:
         write_figure(out.with_suffix(".png"), benchmark, results)
     return 0

@@ -216,8 +216,12 @@ def _group_mean(rows: list[SequenceResult], key: str) -> float | None:
 
 
 def run_benchmark(benchmark: Benchmark, predictors: list[Predictor], data: Path | None = None,
-                  limit: int | None = None, progress: bool = True) -> list[MethodResults]:
-    """Evaluate every predictor on the benchmark's sequences (each sequence is read once)."""
+                  limit: int | None = None, progress: bool = True, store=None) -> list[MethodResults]:
+    """Evaluate every predictor on the benchmark's sequences (each sequence is read once).
+
+    store: a :class:`~d4rt.evaluation.partial_results.PartialResults` (or None): rows it already holds are reused
+    (a sequence all of whose rows it holds is not even read) and each new row is put into it when scored.
+    """
     if not predictors:
         raise UserError("nothing to evaluate: give a checkpoint and/or baselines")
     if len({p.name for p in predictors}) != len(predictors):
@@ -231,11 +235,16 @@ def run_benchmark(benchmark: Benchmark, predictors: list[Predictor], data: Path 
     tasks = set(benchmark.tasks)
     bar = progress_bar(total=len(names) * len(predictors), desc=f"eval {benchmark.name}", unit="run", disable=not progress)
     for name in names:
-        sequence = benchmark.load(data, name)
+        stored = {p.name: store.get(p.name, name) if store is not None else None for p in predictors}
+        sequence = None if all(r is not None for r in stored.values()) else benchmark.load(data, name)
         for predictor in predictors:
             bar.set_postfix_str(f"{name} / {predictor.name}")
-            result = evaluate_sequence(benchmark, sequence, predictor.predict(sequence, tasks))
-            result.notes = sequence.notes + result.notes
+            result = stored[predictor.name]
+            if result is None:
+                result = evaluate_sequence(benchmark, sequence, predictor.predict(sequence, tasks))
+                result.notes = sequence.notes + result.notes
+                if store is not None:
+                    store.put(predictor.name, name, result)
             rows[predictor.name].append(result)
             bar.update()
     bar.close()
