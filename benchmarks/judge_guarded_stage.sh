@@ -40,7 +40,8 @@
 # by a few points with the draw of 48 clips; the mean error follows the fit's slope and spread.
 # Resumable (stage 41 on): every camera probe is kept per checkpoint in $J/probe-cache (the figures of one model do not
 # depend on the others probed with it; the judged checkpoints and the start are probed on the second core while
-# training runs), and a stopped judge started again skips each average, focal measurement and eval it already wrote.
+# training runs), and a stopped judge started again skips each average, focal measurement and eval it already wrote
+# (and resumes a stopped eval from the sequences it finished: d4rt eval --resume).
 set -e
 EVERY=${CAMERA_EVERY:-3}
 export AVERAGE_WEIGHTS=${AVERAGE_WEIGHTS:-0.25 0.5 0.75}
@@ -209,6 +210,6 @@ else
 fi
 if [ "$(cat $J/gate)" = PASS ] && [ ! -f $J/eval.json ]; then
   d4rt eval --benchmark synthetic-dynamic-v1 --checkpoint $J/candidate --baseline oracle --baseline constant-depth \
-     --out $J/eval.json --no-progress > $J/eval.md 2>> $J/judge.log
+     --out $J/eval.json --resume --no-progress > $J/eval.md 2>> $J/judge.log
   echo "eval done $(date -u)" >> $J/judge.log
 fi
