@@ -82,3 +82,27 @@ def test_a_deepened_checkpoint_is_what_init_from_loads_with_the_new_depths(tmp_p
         assert torch.equal(model.state_dict()[key], value), key
     with pytest.raises(UserError, match="different model config"):
         build_from_checkpoint(tmp_path / "grown")  # the tiny preset's depths: refused, never loaded loosely
+
+
+def test_a_larger_input_keeps_every_weight_meaning_what_it_did(tmp_path, make_model, random_video, random_queries,
+                                                                 build_from_checkpoint):
+    """with_input_size: the position table is the run-time resize for the new grid, the query's Fourier frequencies
+    stay, every other weight is copied; the model then runs on the larger input and trains on from init_from."""
+    from d4rt.model.grow import with_input_size
+
+    base = make_model()
+    larger = with_input_size(base, 96).eval()
+    assert (larger.config.image_size, larger.config.grid_size) == (96, 12)
+    pos = larger.encoder.pos_embed
+    assert pos.space.shape[:2] == (12, 12) and torch.equal(pos.space, base.encoder.pos_embed.space_table(12, 12))
+    assert torch.equal(larger.query_embedding.frequencies, base.query_embedding.frequencies)
+    assert larger.config.fourier_max_frequency == base.config.fourier_max == 32.0
+    changed = [k for k, v in base.state_dict().items() if not torch.equal(v, larger.state_dict()[k])]
+    assert changed == ["encoder.pos_embed.space"]
+    out = _outputs(larger, random_video(4, 96, 96, dtype=torch.float32)[None], random_queries(20, 4)[None])
+    assert out["points"].shape == (1, 20, 3) and torch.isfinite(out["points"]).all()
+    with pytest.raises(UserError, match="multiple of patch_size"):
+        with_input_size(base, 100)
+    larger.save_pretrained(tmp_path / "larger")
+    model = build_from_checkpoint(tmp_path / "larger", image_size=96, fourier_max_frequency=32.0)
+    assert torch.equal(model.encoder.pos_embed.space, pos.space)

@@ -54,13 +54,17 @@ class SpaceTimePositions(nn.Module):
         self.time = nn.Parameter(sincos_1d(torch.arange(max_time_steps), dim))
         self.space = nn.Parameter(sincos_2d(grid, dim))
 
-    def forward(self, steps: int, rows: int, cols: int) -> torch.Tensor:
-        """-> ``(steps, rows, cols, dim)`` to add to the tubelet tokens."""
+    def space_table(self, rows: int, cols: int) -> torch.Tensor:
+        """-> ``(rows, cols, dim)``: the spatial table, bilinearly resized when the grid is another size."""
         space = self.space
         if (rows, cols) != tuple(space.shape[:2]):
             space = F.interpolate(space.permute(2, 0, 1)[None], size=(rows, cols), mode="bilinear",
                                   align_corners=False)[0].permute(1, 2, 0)
-        return self.time[:steps, None, None, :] + space[None]
+        return space
+
+    def forward(self, steps: int, rows: int, cols: int) -> torch.Tensor:
+        """-> ``(steps, rows, cols, dim)`` to add to the tubelet tokens."""
+        return self.time[:steps, None, None, :] + self.space_table(rows, cols)[None]
 
 
 class VideoEncoder(nn.Module):

@@ -13,6 +13,11 @@ Where the new blocks go: the encoder alternates frame-local and global blocks in
 ``global_attention_every`` (the last block of a group is global), so it grows by whole groups and every old
 group keeps its kind of attention; the old groups are spread evenly over the new depth (first and last kept in
 place) with the new groups between them. Decoder blocks are all alike and are spread the same way.
+
+A model can also be given a larger input (``with_input_size``): the encoder's spatial position table is resized to
+the new tubelet grid exactly as the encoder resizes it at run time for another grid, and the query's Fourier
+frequencies are pinned to the old ones (by default they follow the input's Nyquist frequency), so every weight keeps
+its meaning; what changes is that the encoder sees more pixels, and the 9x9 RGB patch a smaller part of the image.
 """
 
 from __future__ import annotations
@@ -81,3 +86,22 @@ def deepen(model: D4RT, encoder_depth: int | None = None, decoder_depth: int | N
     state.update(_move_blocks(old, "decoder.blocks.", decoder_map))
     grown.load_state_dict(state, strict=True)
     return grown.train(model.training)
+
+
+def with_input_size(model: D4RT, image_size: int) -> D4RT:
+    """A copy of ``model`` whose encoder input is ``image_size`` pixels a side (see the module docstring).
+
+    The spatial position table ``(grid, grid, dim)`` becomes the bilinear resize the encoder would compute for the
+    new grid at run time; ``fourier_max_frequency`` is set to the model's current one. Raises :class:`UserError`
+    if ``image_size`` is not a multiple of the patch size.
+    """
+    config = model.config
+    resized_config = config.replace(image_size=image_size, fourier_max_frequency=config.fourier_max)
+    resized = D4RT(resized_config)
+    grid = resized_config.grid_size
+    state = model.state_dict()
+    key = "encoder.pos_embed.space"
+    with torch.no_grad():
+        state[key] = model.encoder.pos_embed.space_table(grid, grid).clone()
+    resized.load_state_dict(state, strict=True)
+    return resized.train(model.training)
