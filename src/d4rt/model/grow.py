@@ -100,8 +100,7 @@ def with_input_size(model: D4RT, image_size: int) -> D4RT:
     resized = D4RT(resized_config)
     grid = resized_config.grid_size
     state = model.state_dict()
-    key = "encoder.pos_embed.space"
     with torch.no_grad():
-        state[key] = model.encoder.pos_embed.space_table(grid, grid).clone()
+        state["encoder.pos_embed.space"] = model.encoder.pos_embed.space_table(grid, grid).clone()
     resized.load_state_dict(state, strict=True)
     return resized.train(model.training)
