@@ -139,6 +139,8 @@ def main() -> None:
     parser.add_argument("--margin", type=float, help="non-inferiority margin: exit 1 unless NEW is not worse by it")
     args = parser.parse_args()
     try:
+        if args.margin is not None and args.margin < 0:
+            raise UserError(f"--margin must be >= 0, got {args.margin}")
         loaded = []
         for path in (args.base, args.new):
             try:

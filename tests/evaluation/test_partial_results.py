@@ -43,5 +43,8 @@ def test_rows_are_kept_per_method_and_another_run_is_refused(tmp_path):
         PartialResults(folder, {**run, "benchmark": "bonn"}, {"d4rt": "abc"}, resume=True)
     with pytest.raises(UserError, match="rows of a different d4rt"):
         PartialResults(folder, run, {"d4rt": "xyz"}, resume=True)
+    (folder / "run.json").write_text("[]")
+    with pytest.raises(UserError, match="cannot read .*run.json"):
+        PartialResults(folder, run, {"d4rt": "abc"}, resume=True)
     PartialResults(folder, run, {"d4rt": "xyz"}, resume=False)  # without --resume: cleared
     assert list(folder.glob("*.json")) == [folder / "run.json"]

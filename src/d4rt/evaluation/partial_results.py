@@ -89,6 +89,8 @@ class PartialResults:
         if resume and identity.is_file():
             try:
                 stored = json.loads(identity.read_text())
+                if not isinstance(stored, dict) or not isinstance(stored.get("methods"), dict):
+                    raise ValueError("no run and methods in it")
             except ValueError as error:
                 raise UserError(f"cannot read {identity}: {error}; remove {self.folder} or drop --resume") from None
             if stored.get("run") != run:
