@@ -99,9 +99,11 @@ def test_a_stopped_stream_leaves_consistent_files(tmp_path, clip):
     process.stdin.close()
     assert process.wait(timeout=budget(300)) == 0, process.stderr.read().decode()[-2000:]
     summary = json.loads((out / "stream.json").read_text())
-    assert summary["stopped_by"] == "SIGTERM" and summary["frames"] == 9
+    # The signal may land while the sixth frame's window is still being handled (the stream then ends after
+    # it) or while a later frame is awaited (it ends after the frame that arrives next): 6 to 9 frames.
+    assert summary["stopped_by"] == "SIGTERM" and 6 <= summary["frames"] <= 9
     frames = np.concatenate([np.load(out / f"window_{k:03d}.npz")["frames"] for k in range(summary["windows"])])
-    assert frames.tolist() == list(range(9))  # every frame received is in exactly one window
+    assert frames.tolist() == list(range(summary["frames"]))  # every frame received is in exactly one window
     assert not list(out.glob(".*"))  # no temporary file left
 
 
