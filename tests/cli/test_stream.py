@@ -98,6 +98,7 @@ def test_a_stopped_stream_leaves_consistent_files(tmp_path, clip):
     process.send_signal(signal.SIGTERM)
     with contextlib.suppress(BrokenPipeError):  # the stream may have ended already (see below)
         process.stdin.write(clip.rgb[8:9].tobytes())  # the frame after the signal ends the loop
+    with contextlib.suppress(BrokenPipeError):  # close closes the pipe even when its flush fails
         process.stdin.close()
     assert process.wait(timeout=budget(300)) == 0, process.stderr.read().decode()[-2000:]
     summary = json.loads((out / "stream.json").read_text())
