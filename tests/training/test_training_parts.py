@@ -50,6 +50,52 @@ def test_weight_decay_skips_biases_norms_and_position_tables():
         assert name in kept, name
 
 
+def test_lr_scale_puts_matching_parameters_in_groups_whose_rate_is_scaled():
+    from d4rt.training.optimization import set_learning_rate
+
+    model = D4RT(D4RTConfig.preset("tiny"))
+    config = OptimConfig(lr_scale={"encoder.blocks.[23].*": 10.0, "decoder.*": 0.5})
+    optimizer = build_optimizer(model, config)
+    names = {id(p): n for n, p in model.named_parameters()}
+    set_learning_rate(optimizer, 2e-5)
+    by_name = {names[id(p)]: g for g in optimizer.param_groups for p in g["params"]}
+    assert len(by_name) == len(names)  # every parameter in exactly one group
+    for name, group in by_name.items():
+        scale = 10.0 if name.startswith(("encoder.blocks.2.", "encoder.blocks.3.")) else \
+            0.5 if name.startswith("decoder.") else 1.0
+        assert group["lr"] == pytest.approx(2e-5 * scale), name
+    assert by_name["encoder.blocks.2.attn.proj.weight"]["weight_decay"] == 0.03
+    assert by_name["encoder.blocks.2.attn.proj.bias"]["weight_decay"] == 0.0
+    # Without patterns: the two groups every earlier checkpoint holds, in the same order.
+    plain = build_optimizer(model, OptimConfig())
+    assert [g["weight_decay"] for g in plain.param_groups] == [0.03, 0.0]
+    assert all("lr_scale" not in g for g in plain.param_groups)
+
+
+def test_lr_scale_moves_the_matching_parameters_that_many_times_further():
+    torch.manual_seed(0)
+    model = torch.nn.Sequential(torch.nn.Linear(4, 4), torch.nn.Linear(4, 1))
+    before = [p.detach().clone() for p in model.parameters()]
+    optimizer = build_optimizer(model, OptimConfig(lr=1e-3, weight_decay=0.0, lr_scale={"1.*": 10}))
+    from d4rt.training.optimization import set_learning_rate
+
+    set_learning_rate(optimizer, 1e-3)
+    model(torch.randn(8, 4)).square().mean().backward()
+    optimizer.step()  # Adam's first step moves every parameter with a gradient by about its rate
+    moved = [(p.detach() - b).abs().max().item() for p, b in zip(model.parameters(), before)]
+    assert moved[0] == pytest.approx(1e-3, rel=1e-2) and moved[2] == pytest.approx(1e-2, rel=1e-2)
+
+
+def test_lr_scale_refuses_a_pattern_that_matches_nothing_and_a_factor_that_is_not_positive():
+    from d4rt.training import TrainConfig
+
+    with pytest.raises(UserError, match=r"'encoder\.block\.\*' match no parameter"):
+        build_optimizer(D4RT(D4RTConfig.preset("tiny")), OptimConfig(lr_scale={"encoder.block.*": 2.0}))
+    for scale in (0, -1.0, "ten", True):
+        with pytest.raises(UserError, match="optim.lr_scale maps parameter-name patterns to positive factors"):
+            TrainConfig.from_dict({"optim": {"lr_scale": {"decoder.*": scale}}}).validate()
+
+
 def test_sample_stream_splits_one_global_order_across_ranks_and_resumes_anywhere():
     length, batch, accum, world = 7, 2, 3, 2
 
@@ -115,6 +161,28 @@ def test_checkpoint_round_trip_is_exact_and_loads_as_a_model(tmp_path):
     assert optim["param_groups"] == state["param_groups"]  # betas come back as a tuple
     restored = D4RT.from_pretrained(path)  # a checkpoint directory is also a model directory
     assert all(torch.equal(restored.state_dict()[k], v) for k, v in model.state_dict().items())
+
+
+def test_scaled_groups_survive_a_checkpoint_into_a_fresh_optimizer(tmp_path):
+    from d4rt.training.distributed import DistributedContext, load_optimizer_state, optimizer_state
+
+    torch.manual_seed(0)
+    model = D4RT(D4RTConfig.preset("tiny", max_frames=4))
+    config = OptimConfig(lr=1e-3, lr_scale={"decoder.blocks.1.*": 4.0})
+    optimizer = build_optimizer(model, config)
+    video, queries = torch.rand(1, 4, 32, 32, 3), torch.cat([torch.rand(1, 8, 2), torch.zeros(1, 8, 3)], -1)
+    out = model(video, queries, torch.ones(1))
+    sum(v.square().mean() for v in out.values() if torch.is_tensor(v) and v.requires_grad).backward()
+    optimizer.step()
+    path = write_checkpoint(tmp_path, 1, model.state_dict(), model.config, optimizer_state(model, optimizer), {})
+    _, optim, _ = read_checkpoint(path)
+    model.zero_grad(set_to_none=True)  # as a resumed run's fresh model has none
+    fresh = build_optimizer(model, config)
+    load_optimizer_state(model, fresh, optim, DistributedContext())
+    assert [g.get("lr_scale") for g in fresh.param_groups] == [None, None, 4.0, 4.0]
+    assert [len(g["params"]) for g in fresh.param_groups] == [len(g["params"]) for g in optimizer.param_groups]
+    for old, new in zip(optimizer.state_dict()["state"].values(), fresh.state_dict()["state"].values()):
+        assert torch.equal(old["exp_avg"], new["exp_avg"])
 
 
 def test_rng_states_round_trip_through_json():

@@ -7,10 +7,12 @@ step, so resuming needs nothing but the step number and is exact.
 from __future__ import annotations
 
 import math
+from fnmatch import fnmatchcase
 
 import torch
 from torch import nn
 
+from d4rt.errors import UserError
 from d4rt.training.config import OptimConfig
 
 
@@ -34,18 +36,45 @@ def no_weight_decay(name: str, param: nn.Parameter) -> bool:
     return param.ndim <= 1 or ".pos_embed." in f".{name}"
 
 
+def plain_name(name: str) -> str:
+    """A parameter's name as the bare model names it: without DDP's ``module.`` or torch.compile's ``_orig_mod.``."""
+    while name.startswith(("module.", "_orig_mod.")):
+        name = name.partition(".")[2]
+    return name
+
+
 def build_optimizer(model: nn.Module, config: OptimConfig) -> torch.optim.AdamW:
-    """AdamW over ``model``'s parameters in two groups: decayed weights, and the rest (see
-    :func:`no_weight_decay`). Works on plain, DDP- and FSDP-wrapped models (names are looked up on the
-    parameters as the wrapper exposes them)."""
-    decay, keep = [], []
+    """AdamW over ``model``'s parameters: decayed weights and the rest (see :func:`no_weight_decay`), each split
+    further by ``config.lr_scale`` (a group's ``lr_scale`` multiplies the scheduled rate; without patterns there are
+    exactly these two groups, as in every checkpoint written before it). Works on plain, DDP- and FSDP-wrapped
+    models (names are looked up on the parameters as the wrapper exposes them).
+
+    Raises :class:`UserError` if a pattern of ``config.lr_scale`` matches no parameter.
+    """
+    patterns = list(config.lr_scale.items())
+    groups: dict[tuple[int, bool], list[nn.Parameter]] = {(-1, True): [], (-1, False): []}
+    matched = [0] * len(patterns)
     for name, param in model.named_parameters():
-        if param.requires_grad:
-            (keep if no_weight_decay(name, param) else decay).append(param)
-    groups = [{"params": decay, "weight_decay": config.weight_decay}, {"params": keep, "weight_decay": 0.0}]
-    return torch.optim.AdamW(groups, lr=config.lr, betas=tuple(config.betas), eps=config.eps)
+        if not param.requires_grad:
+            continue
+        which = next((i for i, (pattern, _) in enumerate(patterns) if fnmatchcase(plain_name(name), pattern)), -1)
+        if which >= 0:
+            matched[which] += 1
+        groups.setdefault((which, not no_weight_decay(name, param)), []).append(param)
+    unmatched = [pattern for (pattern, _), count in zip(patterns, matched) if count == 0]
+    if unmatched:
+        raise UserError(f"optim.lr_scale pattern(s) {', '.join(map(repr, unmatched))} match no parameter of the model "
+                        f"(names as in D4RT.named_parameters(), e.g. 'encoder.blocks.2.*')")
+    param_groups = []
+    for (which, decayed), params in groups.items():
+        group = {"params": params, "weight_decay": config.weight_decay if decayed else 0.0}
+        if which >= 0:
+            group["lr_scale"] = float(patterns[which][1])
+        param_groups.append(group)
+    return torch.optim.AdamW(param_groups, lr=config.lr, betas=tuple(config.betas), eps=config.eps)
 
 
 def set_learning_rate(optimizer: torch.optim.Optimizer, lr: float) -> None:
+    """Every group's rate: ``lr`` times the group's ``lr_scale`` (1 where it has none)."""
     for group in optimizer.param_groups:
-        group["lr"] = lr
+        group["lr"] = lr * group.get("lr_scale", 1.0)
