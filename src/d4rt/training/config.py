@@ -106,7 +106,7 @@ class OptimConfig:
     ``"encoder.blocks.[2367].*"``) mapped to a factor on the scheduled learning rate; the first pattern that
     matches a parameter counts, and a pattern that matches none is an error (not in paper). Why: blocks added to a
     trained model by :func:`d4rt.model.grow.deepen` start as the identity, and at the trained weights' learning
-    rate their zeroed output projections grew to 2-3% of the old blocks' in 1,332 steps (stage 62).
+    rate their zeroed output projections grew to a few per cent of the old blocks' norms in 1,332 steps (stage 62).
     """
 
     lr: float = 1e-4

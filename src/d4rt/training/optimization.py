@@ -53,15 +53,13 @@ def build_optimizer(model: nn.Module, config: OptimConfig) -> torch.optim.AdamW:
     """
     patterns = list(config.lr_scale.items())
     groups: dict[tuple[int, bool], list[nn.Parameter]] = {(-1, True): [], (-1, False): []}
-    matched = [0] * len(patterns)
     for name, param in model.named_parameters():
         if not param.requires_grad:
             continue
         which = next((i for i, (pattern, _) in enumerate(patterns) if fnmatchcase(plain_name(name), pattern)), -1)
-        if which >= 0:
-            matched[which] += 1
         groups.setdefault((which, not no_weight_decay(name, param)), []).append(param)
-    unmatched = [pattern for (pattern, _), count in zip(patterns, matched) if count == 0]
+    used = {which for which, _ in groups}
+    unmatched = [pattern for i, (pattern, _) in enumerate(patterns) if i not in used]
     if unmatched:
         raise UserError(f"optim.lr_scale pattern(s) {', '.join(map(repr, unmatched))} match no parameter of the model "
                         f"(names as in D4RT.named_parameters(), e.g. 'encoder.blocks.2.*')")
