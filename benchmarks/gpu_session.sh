@@ -11,6 +11,8 @@
 #   TRAIN_S=300 PART_A_S=110 CALL_S=570 bash benchmarks/gpu_session.sh lease   # train, snapshot, start the bench
 #   (PROBE_S=60 first profiles one GPU step, batch 1, into probe.txt; INIT_FROM=DIR continues from a model directory;
 #   BENCH=0 skips the bench, for a lease that only trains; ECHO=E draws E samples from each rendered clip, default 2)
+#   (CONFIG=configs/tiny-gpu-continue.yaml INIT_FROM=src/d4rt/assets/d4rt-tiny: the shipped tiny model trained on
+#   instead, a lease whose product can ship; docs/training.md "A lease that can ship")
 #   bash benchmarks/gpu_session.sh collect  # only if the bench was still running: waits WAIT_S (150 s) for it
 # Each call writes into $OUT: weights.tar.part-aa, -ab, ... (model.safetensors, config.json, metrics.jsonl and
 # train_config.yaml of the run, split under the tool's 16 MiB per file), progress.txt, and at the end bench-gpu.json.
