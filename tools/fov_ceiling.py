@@ -33,7 +33,7 @@ from d4rt.evaluation.synthetic_benchmark import clip_specs
 from d4rt.model import D4RT
 from d4rt.model.inputs import encoder_frames
 
-from fov_probe import HELD_OUT_SEED, PROBE_TRAIN_SEED, choose_alpha, log_focal, scores
+from fov_probe import HELD_OUT_SEED, PROBE_TRAIN_SEED, choose_alpha, log_focal, pool, ridge_coefficients, scores
 
 
 def render_pool(specs, size: int, desc: str) -> list[tuple[torch.Tensor, float, float]]:
@@ -49,8 +49,7 @@ def render_pool(specs, size: int, desc: str) -> list[tuple[torch.Tensor, float, 
 
 def pooled(model: D4RT, frames: torch.Tensor, aspect: float) -> torch.Tensor:
     """(2 * encoder_dim,) mean and standard deviation over the scene tokens, differentiable."""
-    tokens = model.encode_tokens(frames[None].float() / 255, torch.tensor([aspect]))[0]
-    return torch.cat([tokens.mean(0), tokens.std(0)])
+    return pool(model.encode_tokens(frames[None].float() / 255, torch.tensor([aspect]))[0])
 
 
 def predict(model: D4RT, head: nn.Linear, pool) -> np.ndarray:
@@ -85,13 +84,11 @@ def main() -> None:
     with torch.no_grad():
         features = np.stack([pooled(model, f, a).numpy() for f, a, _ in tqdm(train, desc="probe features")])
     alpha, _ = choose_alpha(features, train_true)
-    mean, scale = features.mean(0), features.std(0) + 1e-8
-    z = (features - mean) / scale
-    w = np.linalg.solve(z.T @ z + alpha * len(z) * np.eye(z.shape[1]), z.T @ (train_true - train_true.mean()))
+    weights, intercept = ridge_coefficients(features, train_true, alpha)
     head = nn.Linear(features.shape[1], 1)
     with torch.no_grad():
-        head.weight.copy_(torch.from_numpy(w / scale).float()[None])
-        head.bias.fill_(float(train_true.mean() - (mean / scale) @ w))
+        head.weight.copy_(torch.from_numpy(weights).float()[None])
+        head.bias.fill_(intercept)
     report = {"checkpoint": str(args.checkpoint), "train_clips": len(train), "test_clips": len(test),
               "probe_alpha": alpha, "start": scores(predict(model, head, test), test_true)}
 

@@ -43,10 +43,14 @@ FOLDS = 5
 ALPHAS = np.logspace(-3, 4, 15)
 
 
+def pool(tokens: torch.Tensor) -> torch.Tensor:
+    """``tokens: (M, D)`` -> ``(2 * D,)``: their mean and standard deviation, the probe's features."""
+    return torch.cat([tokens.mean(0), tokens.std(0)])
+
+
 def pooled_tokens(model: D4RT, rgb: np.ndarray) -> np.ndarray:
-    """(2 * encoder_dim,) the mean and the standard deviation over the clip's scene tokens."""
-    tokens = model.encode(rgb).tokens[0].float()
-    return torch.cat([tokens.mean(0), tokens.std(0)]).numpy()
+    """(2 * encoder_dim,) the pooled scene tokens of a clip of any size (``model.encode`` resizes it)."""
+    return pool(model.encode(rgb).tokens[0].float()).numpy()
 
 
 def log_focal(fx: np.ndarray, width: int) -> float:
@@ -69,13 +73,19 @@ def collect(models: dict[str, D4RT], specs, recipe: D4RT | None, desc: str) -> d
             "recipe": np.array(estimated) if recipe is not None else None}
 
 
-def ridge_fit(x: np.ndarray, y: np.ndarray, alpha: float):
-    """Ridge on standardised features with an unpenalised intercept; returns a predictor."""
+def ridge_coefficients(x: np.ndarray, y: np.ndarray, alpha: float) -> tuple[np.ndarray, float]:
+    """Ridge on standardised features with an unpenalised intercept, returned in the raw features' units:
+    ``(D,)`` coefficients and the intercept, so that ``x @ coefficients + intercept`` predicts ``y``."""
     mean, scale = x.mean(0), x.std(0) + 1e-8
     z = (x - mean) / scale
-    weights = np.linalg.solve(z.T @ z + alpha * len(z) * np.eye(z.shape[1]), z.T @ (y - y.mean()))
-    offset = y.mean()
-    return lambda new: ((new - mean) / scale) @ weights + offset
+    weights = np.linalg.solve(z.T @ z + alpha * len(z) * np.eye(z.shape[1]), z.T @ (y - y.mean())) / scale
+    return weights, float(y.mean() - mean @ weights)
+
+
+def ridge_fit(x: np.ndarray, y: np.ndarray, alpha: float):
+    """Ridge (``ridge_coefficients``) as a predictor of new features."""
+    weights, intercept = ridge_coefficients(x, y, alpha)
+    return lambda new: new @ weights + intercept
 
 
 def choose_alpha(x: np.ndarray, y: np.ndarray, seed: int = 0) -> tuple[float, list[float]]:
