@@ -33,7 +33,8 @@ from d4rt.evaluation.synthetic_benchmark import clip_specs
 from d4rt.model import D4RT
 from d4rt.model.inputs import encoder_frames
 
-from fov_probe import HELD_OUT_SEED, PROBE_TRAIN_SEED, choose_alpha, log_focal, pool, ridge_coefficients, scores
+from fov_probe import (HELD_OUT_SEED, PROBE_TRAIN_SEED, choose_alpha, log_focal, pool, ridge_coefficients, scores,
+                       summary_line)
 
 
 def render_pool(specs, size: int, desc: str) -> list[tuple[torch.Tensor, float, float]]:
@@ -121,9 +122,7 @@ def main() -> None:
                   end_train=scores(predict(model, head, train[:200]), train_true[:200]))
     args.out.write_text(json.dumps(report, indent=1))
     for key in ("start", "end", "end_train"):
-        r = report[key]
-        print(f"{key:10s} median {100 * r['median_focal_error']:5.1f}%  mean {r['mean_focal_error']:.3f}  "
-              f"slope {r['slope']:.2f}")
+        print(summary_line(key, report[key]))
     print(f"{step} steps; wrote {args.out}")
 
 

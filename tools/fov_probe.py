@@ -107,6 +107,12 @@ def scores(estimated: np.ndarray, true: np.ndarray) -> dict:
             "slope": slope, "per_clip_error": errors.round(4).tolist()}
 
 
+def summary_line(label: str, result: dict) -> str:
+    """One printed line of ``scores``' figures."""
+    return (f"{label:16s} median {100 * result['median_focal_error']:5.1f}%  mean {result['mean_focal_error']:.3f}  "
+            f"slope {result['slope']:.2f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint", help="model directory")
@@ -138,9 +144,7 @@ def main() -> None:
                                                                           test["true"])}
     args.out.write_text(json.dumps(report, indent=1))
     for key in ("constant", "recipe", "probe_trained", "probe_untrained"):
-        r = report[key]
-        print(f"{key:16s} median {100 * r['median_focal_error']:5.1f}%  mean {r['mean_focal_error']:.3f}  "
-              f"slope {r['slope']:.2f}")
+        print(summary_line(key, report[key]))
     print(f"wrote {args.out}")
 
 
