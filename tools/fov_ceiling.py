@@ -33,19 +33,19 @@ from d4rt.evaluation.synthetic_benchmark import clip_specs
 from d4rt.model import D4RT
 from d4rt.model.inputs import encoder_frames
 
-from fov_probe import (HELD_OUT_SEED, PROBE_TRAIN_SEED, choose_alpha, log_focal, pool, ridge_coefficients, scores,
-                       summary_line)
+from fov_probe import (HELD_OUT_SEED, PROBE_TRAIN_SEED, check_clip_counts, choose_alpha, load_model, log_focal, pool,
+                       ridge_coefficients, scores, summary_line)
 
 
-def render_pool(specs, size: int, desc: str) -> list[tuple[torch.Tensor, float, float]]:
+def render_clips(specs, size: int, desc: str) -> list[tuple[torch.Tensor, float, float]]:
     """Per clip: encoder-resolution frames (T, size, size, 3) uint8, aspect ratio W / H, true log(fx / W)."""
-    pool = []
+    clips = []
     for spec in tqdm(specs, desc=desc, unit="clip"):
         sequence = spec.render()
         frames = encoder_frames(torch.from_numpy(sequence.rgb), size, torch.device("cpu"))
-        pool.append(((frames * 255).round().to(torch.uint8), spec.width / spec.height,
-                     log_focal(sequence.intrinsics[:, 0, 0], spec.width)))
-    return pool
+        clips.append(((frames * 255).round().to(torch.uint8), spec.width / spec.height,
+                      log_focal(sequence.intrinsics[:, 0, 0], spec.width)))
+    return clips
 
 
 def pooled(model: D4RT, frames: torch.Tensor, aspect: float) -> torch.Tensor:
@@ -53,9 +53,10 @@ def pooled(model: D4RT, frames: torch.Tensor, aspect: float) -> torch.Tensor:
     return pool(model.encode_tokens(frames[None].float() / 255, torch.tensor([aspect]))[0])
 
 
-def predict(model: D4RT, head: nn.Linear, pool) -> np.ndarray:
+def predict(model: D4RT, head: nn.Linear, clips) -> np.ndarray:
+    """(clips,) the head's log(fx / W) for each of ``render_clips``' clips."""
     with torch.no_grad():
-        return np.array([head(pooled(model, f, a)).item() for f, a, _ in pool])
+        return np.array([head(pooled(model, f, a)).item() for f, a, _ in clips])
 
 
 def main() -> None:
@@ -68,15 +69,18 @@ def main() -> None:
     parser.add_argument("--lr", type=float, default=1e-4, help="peak learning rate (the head's is 10x)")
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
+    specs = clip_specs()
+    check_clip_counts(parser, args.train_clips, len(specs), len(specs))
+    if args.minutes <= 0 or args.batch < 1:
+        parser.error(f"--minutes must be positive and --batch at least 1, got {args.minutes} and {args.batch}")
     torch.set_num_threads(args.threads)
     rng = np.random.default_rng(0)
 
-    model = D4RT.from_pretrained(args.checkpoint)
+    model = load_model(parser, args.checkpoint)
     size = model.config.image_size
-    specs = clip_specs()
-    train = render_pool([replace(specs[i % len(specs)], seed=PROBE_TRAIN_SEED + i) for i in range(args.train_clips)],
-                        size, "train clips")
-    test = render_pool([replace(s, seed=HELD_OUT_SEED + s.index) for s in specs], size, "held-out clips")
+    train = render_clips([replace(specs[i % len(specs)], seed=PROBE_TRAIN_SEED + i) for i in range(args.train_clips)],
+                         size, "train clips")
+    test = render_clips([replace(s, seed=HELD_OUT_SEED + s.index) for s in specs], size, "held-out clips")
     train_true = np.array([t for _, _, t in train])
     test_true = np.array([t for _, _, t in test])
 

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from d4rt.errors import UserError
 from d4rt.evaluation.synthetic_benchmark import clip_specs
 from d4rt.model import D4RT
 
@@ -113,21 +114,38 @@ def summary_line(label: str, result: dict) -> str:
             f"slope {result['slope']:.2f}")
 
 
+def check_clip_counts(parser: argparse.ArgumentParser, train_clips: int, test_clips: int, held_out: int) -> None:
+    """One-line errors for clip counts the probe cannot use: cross-validation needs a clip in every fold."""
+    if train_clips < FOLDS:
+        parser.error(f"--train-clips must be at least {FOLDS} (one per cross-validation fold), got {train_clips}")
+    if not 1 <= test_clips <= held_out:
+        parser.error(f"--test-clips must be 1-{held_out}, got {test_clips}")
+
+
+def load_model(parser: argparse.ArgumentParser, checkpoint: str) -> D4RT:
+    """The checkpoint, loaded strictly, or a one-line error naming the problem."""
+    try:
+        return D4RT.from_pretrained(checkpoint)
+    except UserError as error:
+        parser.error(str(error))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint", help="model directory")
     parser.add_argument("--out", type=Path, required=True, help="JSON file to write")
     parser.add_argument("--train-clips", type=int, default=480, help="clips the probe is fitted on")
-    parser.add_argument("--test-clips", type=int, default=48, help="only the first N held-out clips")
+    parser.add_argument("--test-clips", type=int, default=48, help="only the first N held-out clips (1-48)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     args = parser.parse_args()
+    specs = clip_specs()
+    check_clip_counts(parser, args.train_clips, args.test_clips, len(specs))
     torch.set_num_threads(args.threads)
 
-    trained = D4RT.from_pretrained(args.checkpoint).eval()
+    trained = load_model(parser, args.checkpoint).eval()
     torch.manual_seed(0)
     untrained = D4RT(trained.config).eval()
     models = {"trained": trained, "untrained": untrained}
-    specs = clip_specs()
     train_specs = [replace(specs[i % len(specs)], seed=PROBE_TRAIN_SEED + i) for i in range(args.train_clips)]
     test_specs = [replace(s, seed=HELD_OUT_SEED + s.index) for s in specs[:args.test_clips]]
 

@@ -30,8 +30,9 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from compare_evals import paired_bootstrap  # noqa: E402
 
+from d4rt.errors import UserError  # noqa: E402
 from d4rt.evaluation.benchmarks import get_benchmark  # noqa: E402
-from d4rt.evaluation.harness import _track_intrinsics  # noqa: E402
+from d4rt.evaluation.harness import track_intrinsics  # noqa: E402
 from d4rt.evaluation.metrics.tracks import tapvid3d_metrics  # noqa: E402
 from d4rt.evaluation.synthetic_benchmark import NAME, clip_specs  # noqa: E402
 from d4rt.model import D4RT  # noqa: E402
@@ -59,9 +60,15 @@ def main() -> None:
     parser.add_argument("--clips", type=int, default=16, help="held-out clips (every 3rd clip definition, at most 16)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1: beside a training run)")
     args = parser.parse_args()
+    definitions = clip_specs()[::3]
+    if not 1 <= args.clips <= len(definitions):
+        parser.error(f"--clips must be 1-{len(definitions)}, got {args.clips}")
     torch.set_num_threads(args.threads)
-    models = {c: D4RT.from_pretrained(c) for c in args.checkpoints}
-    specs = [replace(s, seed=HELD_OUT_SEED + s.index) for s in clip_specs()[::3][:args.clips]]
+    try:  # every checkpoint loads (strictly) before the clips are rendered: a bad path fails in one line, at once
+        models = {c: D4RT.from_pretrained(c) for c in args.checkpoints}
+    except UserError as error:
+        parser.error(str(error))
+    specs = [replace(s, seed=HELD_OUT_SEED + s.index) for s in definitions[:args.clips]]
     rows = {c: [] for c in models}
     for spec in tqdm(specs, desc="occlusion probe", unit="clip"):
         sequence = spec.render()
@@ -71,7 +78,7 @@ def main() -> None:
             predicted = model.reconstruct(sequence.rgb).tracks(sources, frame="camera")
             probability = predicted.visibility.T
             metrics = tapvid3d_metrics(predicted.points.transpose(1, 0, 2), probability > 0.5, tracks.points,
-                                       tracks.visible, _track_intrinsics(sequence), sequence.image_size, TRACK_SCALING)
+                                       tracks.visible, track_intrinsics(sequence), sequence.image_size, TRACK_SCALING)
             rows[name].append({"clip": spec.name, **metrics, **visibility_scores(probability, tracks.visible)})
     report = {"held_out_seed": HELD_OUT_SEED, "clips": [s.name for s in specs], "models": {}, "paired_oa": {}}
     for name, clip_rows in rows.items():

@@ -39,8 +39,21 @@ def test_scores_read_relative_error_and_log_slope():
     assert fov_probe.log_focal(np.array([60.0, 64.0, 70.0]), 64) == pytest.approx(0.0)
 
 
-def test_the_ceiling_tool_imports_the_probe():
-    ceiling = importlib.util.spec_from_file_location("fov_ceiling", SCRIPT.with_name("fov_ceiling.py"))
-    module = importlib.util.module_from_spec(ceiling)
-    ceiling.loader.exec_module(module)
-    assert module.choose_alpha is fov_probe.choose_alpha
+def test_the_ceiling_reads_the_probes_features():
+    """tools/fov_ceiling.py trains on the probe's features computed from its own stored uint8 frames: they must be
+    tools/fov_probe.py's features of the same clip."""
+    import torch
+
+    from d4rt.config import D4RTConfig
+    from d4rt.model import D4RT
+
+    ceiling_spec = importlib.util.spec_from_file_location("fov_ceiling", SCRIPT.with_name("fov_ceiling.py"))
+    ceiling = importlib.util.module_from_spec(ceiling_spec)
+    ceiling_spec.loader.exec_module(ceiling)
+    torch.manual_seed(0)
+    model = D4RT(D4RTConfig.preset("tiny")).eval()
+    rgb = np.random.default_rng(1).integers(0, 256, size=(4, 64, 64, 3), dtype=np.uint8)  # at the encoder's size
+    with torch.no_grad():
+        from_uint8 = ceiling.pooled(model, torch.from_numpy(rgb), 1.0).numpy()
+    assert from_uint8.shape == (2 * model.config.encoder_dim,)
+    np.testing.assert_allclose(from_uint8, fov_probe.pooled_tokens(model, rgb), atol=1e-5)

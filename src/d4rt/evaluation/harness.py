@@ -109,11 +109,11 @@ def evaluate_sequence(benchmark: Benchmark, sequence: EvalSequence, prediction: 
     tracks = sequence.tracks
     if tracks is not None and "tracks" in tasks and prediction.tracks is not None:
         m.update(tapvid3d_metrics(prediction.tracks, prediction.track_visible, tracks.points, tracks.visible,
-                                  _track_intrinsics(sequence), sequence.image_size, benchmark.track_scaling))
+                                  track_intrinsics(sequence), sequence.image_size, benchmark.track_scaling))
     gt_world = sequence.world_tracks() if "world_tracks" in tasks else None
     if gt_world is not None and prediction.world_tracks is not None:
         world = world_track_metrics(prediction.world_tracks, gt_world, tracks.visible, tracks.points[..., 2],
-                                    _track_intrinsics(sequence), sequence.image_size, benchmark.track_scaling)
+                                    track_intrinsics(sequence), sequence.image_size, benchmark.track_scaling)
         m["world_apd3d"], m["world_l1"] = world["apd3d"], world["l1"]
     gt_map = sequence.point_map() if "point_cloud" in tasks else None
     if gt_map is not None and prediction.point_map is not None:
@@ -154,7 +154,7 @@ def _score_poses(result: SequenceResult, sequence: EvalSequence, prediction: Pre
     result.metrics[f"auc@{POSE_AUC_THRESHOLD}"] = auc_from_errors(*result.pose_errors, POSE_AUC_THRESHOLD)
 
 
-def _track_intrinsics(sequence: EvalSequence) -> np.ndarray:
+def track_intrinsics(sequence: EvalSequence) -> np.ndarray:
     """(fx, fy, cx, cy), per frame (T, 4) if the camera zooms."""
     if sequence.intrinsics is None:
         raise UserError(f"{sequence.name}: 3D-track metrics need the ground-truth intrinsics")
