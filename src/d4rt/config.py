@@ -99,6 +99,10 @@ class D4RTConfig:
             1.3 pixels off and moved pixels no better than leaving them where they were (docs/training.md,
             stage 42), so correspondence never showed in the 2D term's gradient. Measured (stage 43): no better
             than the plain head over 1,000 steps, so off in every shipped config; kept for longer or larger runs.
+        dense_depth_head: add :class:`d4rt.model.dense_depth.DenseDepthHead`, a training aid that answers every
+            pixel's log-depth from the scene tokens so that ``loss.weight_dense_depth`` can supervise the encoder
+            at every pixel (not in paper; inference never uses it). Why: the queries alone leave the sky and a
+            near box at nearly one depth in the tiny models trained so far (docs/training.md, stage 67).
 
     Inference default
         pose_pairs: the camera recipe's pairing that ``Reconstruction.from_model`` uses for this model when the
@@ -142,6 +146,7 @@ class D4RTConfig:
     confidence_activation: str = "softplus"
     relative_pose_head: bool = False
     uv_residual: bool = False
+    dense_depth_head: bool = False
     # inference default
     pose_pairs: str = "first"
     # runtime
@@ -194,7 +199,8 @@ class D4RTConfig:
             value = getattr(self, name)
             if not _is_number(value) or not value > 0:
                 raise UserError(f"config field {name} must be a positive number, got {value!r}")
-        for name in ("gradient_checkpointing", "cache_scene_kv", "relative_pose_head", "uv_residual"):
+        for name in ("gradient_checkpointing", "cache_scene_kv", "relative_pose_head", "uv_residual",
+                     "dense_depth_head"):
             if not isinstance(getattr(self, name), bool):
                 raise UserError(f"config field {name} must be true or false, got {getattr(self, name)!r}")
         check_pose_pairs(self.pose_pairs, "config pose_pairs")

@@ -136,6 +136,11 @@ def test_training_sample_targets_are_exact_through_crop_zoom_and_stride(room_cli
         assert sample["video"].shape == (4, 32, 32, 3) and 0 <= sample["video"].min() <= sample["video"].max() <= 1
         x0, y0, w, h = view.crop
         assert sample["aspect_ratio"].item() == pytest.approx(w / h)
+        # Each sample pixel's depth is the source depth at the source pixel under its centre (nearest, no blend).
+        rows = y0 + np.minimum(((np.arange(32) + 0.5) * h / 32).astype(int), h - 1)
+        cols = x0 + np.minimum(((np.arange(32) + 0.5) * w / 32).astype(int), w - 1)
+        source = room_clip.depth[list(view.frames)][:, rows][:, :, cols]
+        assert torch.equal(sample["depth"], torch.from_numpy(np.where(source > 0, source, 0).astype(np.float32)))
 
 
 def test_sample_view_ranges():

@@ -410,3 +410,30 @@ def test_squared_pose_translation_and_its_own_weight():
     assert torch.isclose(total - plain, 3.0 * terms["pose_translation"] - terms_l1["pose_translation"], atol=1e-5)
     with pytest.raises(UserError, match="pose_translation must be one of l1, squared"):
         LossConfig(pose_translation="l2").validate()
+
+
+def test_dense_depth_term_by_hand_and_invariant_to_each_clips_scale():
+    from d4rt.training.losses import dense_depth_loss
+
+    depth = torch.tensor([[[[1.0, 2.0], [4.0, 0.0]]], [[[3.0, 3.0], [3.0, 3.0]]]])  # (B=2, T=1, 2, 2); 0: unknown
+    exact = torch.log(torch.where(depth > 0, depth, torch.ones_like(depth)))
+    scaled = exact + torch.tensor([5.0, -2.0]).reshape(2, 1, 1, 1)  # each clip's depth scaled by its own factor
+    assert dense_depth_loss(scaled, depth).item() == pytest.approx(0.0, abs=1e-6)
+    # Clip 0's known errors (0, 0, 3 * log 2) centred on their mean (log 2): |-log 2|, |-log 2|, |2 log 2|;
+    # clip 1 exact: mean over the 7 known pixels.
+    wrong = exact.clone()
+    wrong[0, 0, 1, 0] += 3 * LOG2
+    wrong[0, 0, 1, 1] += 100.0  # the unknown pixel counts for nothing
+    assert dense_depth_loss(wrong, depth).item() == pytest.approx(4 * LOG2 / 7, rel=1e-6)
+
+
+def test_dense_depth_term_needs_the_head_and_the_maps():
+    batch = two_query_batch()
+    with pytest.raises(UserError, match="weight_dense_depth needs a model with dense_depth_head"):
+        d4rt_loss(perfect(batch), batch, LossConfig(weight_dense_depth=1.0))
+    pred = perfect(batch) | {"dense_log_depth": torch.zeros(1, 1, 2, 2, requires_grad=True)}
+    batch["depth"] = torch.tensor([[[[1.0, 2.0], [4.0, 8.0]]]])
+    total, terms = d4rt_loss(pred, batch, LossConfig(weight_dense_depth=2.0))
+    assert terms["dense_depth"].item() == pytest.approx(LOG2, rel=1e-6)  # |(0,1,2,3) - 1.5| log 2 on average
+    total.backward()
+    assert pred["dense_log_depth"].grad.abs().sum() > 0

@@ -20,7 +20,7 @@ from d4rt.data.augment import AugmentConfig, photometric_augment, sample_stride,
 from d4rt.data.sampler import QuerySampler, QuerySamplerConfig
 from d4rt.errors import UserError
 from d4rt.geometry.view import View
-from d4rt.synthetic.clip import Clip, load_clip, view_rgb
+from d4rt.synthetic.clip import Clip, load_clip, view_depth, view_rgb
 from d4rt.synthetic.generate import render_clip
 
 TARGET_KEYS = ("points", "uv", "visibility", "motion", "normals")
@@ -104,8 +104,9 @@ def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampl
     Returns torch tensors: ``video (T,H,W,3) float32`` in [0, 1] (augmented), ``queries (N,5) float32``
     in the view's coordinates, targets ``points (N,3)``, ``uv (N,2)``, ``visibility (N,)``,
     ``motion (N,3)``, ``normals (N,3)`` (zeros where undefined), masks ``valid (N,)`` and
-    ``uv_valid (N,)`` (bool), ``aspect_ratio ()`` (the crop's width / height in source pixels), and the
-    view's ``intrinsics (T,3,3)`` and ``cam_to_world (T,4,4)`` (float32).
+    ``uv_valid (N,)`` (bool), ``aspect_ratio ()`` (the crop's width / height in source pixels), the
+    view's ``intrinsics (T,3,3)`` and ``cam_to_world (T,4,4)`` (float32), and ``depth (T,H,W) float32``, the
+    true z-depth of every sample pixel (0 where unknown; for ``loss.weight_dense_depth``).
     """
     drawn = sampler.sample(clip, rng, view)
     answers = clip.oracle.query(drawn["source_queries"])  # exact: queries sit where the source is exact
@@ -132,6 +133,7 @@ def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampl
         aspect_ratio=torch.tensor(w / h, dtype=torch.float32),
         intrinsics=torch.from_numpy(view.intrinsics(clip.intrinsics)).float(),
         cam_to_world=torch.from_numpy(clip.cam_to_world[frames]).float(),
+        depth=torch.from_numpy(view_depth(clip.depth, view)),
     )
     return sample
 

@@ -20,6 +20,7 @@ from torch import nn
 from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
 from d4rt.model.decoder import QueryDecoder, SceneKV
+from d4rt.model.dense_depth import DenseDepthHead
 from d4rt.model.encoder import VideoEncoder
 from d4rt.model.inputs import (
     as_tensor,
@@ -38,7 +39,8 @@ class D4RT(nn.Module):
     """D4RT (Zhang et al. 2025): ``D4RT(D4RTConfig.preset("tiny"))``.
 
     Submodules: ``encoder`` (:class:`VideoEncoder`), ``query_embedding`` (:class:`QueryEmbedding`),
-    ``decoder`` (:class:`QueryDecoder`, with its prediction heads).
+    ``decoder`` (:class:`QueryDecoder`, with its prediction heads), and with ``config.dense_depth_head`` the
+    training aid ``dense_depth`` (:class:`DenseDepthHead`).
     """
 
     def __init__(self, config: D4RTConfig):
@@ -49,6 +51,7 @@ class D4RT(nn.Module):
         self.encoder = VideoEncoder(config)
         self.query_embedding = QueryEmbedding(config)
         self.decoder = QueryDecoder(config)
+        self.dense_depth = DenseDepthHead(config) if config.dense_depth_head else None
         self.reset_parameters()
 
     def reset_parameters(self) -> None:
@@ -110,7 +113,8 @@ class D4RT(nn.Module):
         Returns:
             dict of ``points (B, N, 3)``, ``uv (B, N, 2)``, ``visibility (B, N)`` (probability),
             ``visibility_logit (B, N)`` (for BCE-with-logits), ``motion (B, N, 3)``,
-            ``normals (B, N, 3)`` (unit), ``confidence (B, N)`` (positive).
+            ``normals (B, N, 3)`` (unit), ``confidence (B, N)`` (positive); with ``config.dense_depth_head``
+            also ``dense_log_depth (B, T, H, W)`` (log-depth of every input pixel up to a per-clip constant).
         """
         if check_inputs:
             video, queries, aspect_ratio, patch_video = self._check_batch(video, queries, aspect_ratio, patch_video)
@@ -119,7 +123,10 @@ class D4RT(nn.Module):
                 raise UserError("config rgb_patch_source='original' needs patch_video (the original frames)")
             patch_video = video
         tokens = self.encode_tokens(video, aspect_ratio)
-        return self.decode(queries, self.decoder.project_scene(tokens), patch_video)
+        out = self.decode(queries, self.decoder.project_scene(tokens), patch_video)
+        if self.dense_depth is not None:
+            out["dense_log_depth"] = self.dense_depth(tokens, *video.shape[1:4])
+        return out
 
     def _check_batch(self, video, queries, aspect_ratio, patch_video):
         """The training inputs as checked tensors, or a :class:`UserError` naming the problem."""

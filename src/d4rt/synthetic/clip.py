@@ -213,6 +213,15 @@ def view_rgb(rgb: np.ndarray, view: View) -> np.ndarray:
     return _resize_rgb(rgb[list(view.frames), y0:y0 + h, x0:x0 + w], view.size)
 
 
+def view_depth(depth: np.ndarray, view: View) -> np.ndarray:
+    """The depth maps of ``view``: (T, H, W) float32 -> (T_view, h, w) float32, cropped, and resized by taking
+    the source pixel nearest to each output pixel centre (depths are never blended across an edge); 0 where
+    the source has no ground truth (0 or non-finite)."""
+    x0, y0, w, h = view.crop
+    depth = _resize_nearest(depth[list(view.frames), y0:y0 + h, x0:x0 + w], view.size).astype(np.float32)
+    return np.where(np.isfinite(depth) & (depth > 0), depth, np.float32(0.0))
+
+
 def _resize_rgb(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """(T, h, w, 3) uint8 -> (T, H, W, 3) uint8, bilinear with anti-aliasing (pixel centres aligned)."""
     if rgb.shape[1:3] == tuple(size):

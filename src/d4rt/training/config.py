@@ -219,6 +219,10 @@ class TrainConfig:
                 raise UserError(f"optim.lr_scale maps parameter-name patterns to positive factors, got "
                                 f"{pattern!r}: {scale!r}")
         self.loss.validate()
+        if self.loss.weight_dense_depth > 0 and not model.dense_depth_head:
+            raise UserError("loss.weight_dense_depth needs model.overrides.dense_depth_head: true")
+        if self.loss.weight_dense_depth > 0 and data.tracks is not None:
+            raise UserError("loss.weight_dense_depth needs depth maps, which data.tracks clips do not have")
         if data.tracks is not None:
             data.tracks.validate()
         else:

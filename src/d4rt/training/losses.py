@@ -58,6 +58,12 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   that ratio; the log depth costs a ratio's error the same at every depth. A prediction below
   ``_MIN_LOG_DEPTH`` of its clip's mean depth (or behind the camera) gets no gradient from this term; L3D
   still pulls it.
+- *Dense depth* (not in paper; ``weight_dense_depth`` > 0, only for a model with ``dense_depth_head``): the
+  head's log-depth of every input pixel against the log of the batch's ``depth`` maps, over the pixels with
+  a true depth, each clip's errors centred on their clip mean before the L1: ``|e - mean_clip(e)|`` with
+  ``e = pred - log(z)``, invariant to a per-clip scale of depth. Why: a depth query is ~2% of the ~1,000
+  queries a clip is asked, while this term supervises every pixel of every frame through the scene tokens
+  the queries read (stage 67, docs/training.md); the queries still answer every output.
 - *Ray angle* (not in paper; ``weight_ray_angle`` > 0): the angle between the predicted and the true point
   as seen from camera t_cam (the angle between the two vectors, whatever their lengths), divided by the
   clip's mean angle of its true in-front points off the optical axis (a stand-in for half the field of
@@ -111,6 +117,8 @@ class LossConfig:
         by 1 / L3D: the hardest queries (far sky, whose depth then decides a sequence's L1 depth alignment)
         learn least. The confidence keeps its meaning (it still ranks queries by their expected error).
     weight_log_depth: (not in paper) weight of the scale-invariant log-depth term (module docstring); 0 = off.
+    weight_dense_depth: (not in paper) weight of the dense depth term (module docstring); 0 = off. Needs a
+        model with ``dense_depth_head`` and batches with ``depth`` maps.
     ray_angle_spread: (not in paper) what the ray-angle term divides each clip's angles by: "target", its
         true points' mean angle off the axis, or "geometric", the geometric mean of that and the
         prediction's (module docstring).
@@ -131,12 +139,13 @@ class LossConfig:
     weight_log_depth: float = 0.0
     weight_ray_angle: float = 0.0
     ray_angle_spread: str = "target"
+    weight_dense_depth: float = 0.0
 
     def validate(self) -> None:
         optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
                      "weight_normal", "weight_pose", "weight_log_depth", "weight_ray_angle",
-                     *optional):
+                     "weight_dense_depth", *optional):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
                 raise UserError(f"loss {name} must be a number >= 0, got {value!r}")
@@ -193,6 +202,19 @@ def log_depth_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
     target_z = target[..., 2] / mean_depth(target, mask)[:, None]
     error = torch.log(pred_z.clamp_min(_MIN_LOG_DEPTH)) - torch.log(target_z.clamp_min(_MIN_LOG_DEPTH))
     return error.abs(), in_front
+
+
+def dense_depth_loss(pred_log_depth: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+    """The dense depth term (module docstring): a scalar, the mean over the clips' pixels with a true depth.
+
+    pred_log_depth: (B, T, H, W) log-depth up to a per-clip constant; depth: (B, T, H, W) true z-depth, 0 where
+    unknown. A batch without any true depth gives 0 (still attached to the graph).
+    """
+    known = depth > 0
+    error = pred_log_depth.float() - torch.log(torch.where(known, depth, torch.ones_like(depth)))
+    flat_error, flat_known = error.flatten(1), known.flatten(1)
+    centred = flat_error - masked_mean_per_clip(flat_error, flat_known)[:, None]
+    return masked_mean(centred.abs(), flat_known)
 
 
 def vector_angle(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -252,7 +274,8 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         ``(total, terms)``: the scalar to minimise and a dict of detached scalars, each unweighted:
         ``3d`` (plain L3D), ``3d_confident`` (c * L3D), ``confidence`` (-log c), ``2d``, ``visibility``,
         ``motion``, ``normal``, plus ``confidence_mean`` (mean c) and ``valid_fraction``, ``uv_fraction``;
-        with their weights > 0 also ``pose_rotation``, ``pose_translation``, ``log_depth`` and ``ray_angle``.
+        with their weights > 0 also ``pose_rotation``, ``pose_translation``, ``log_depth``, ``ray_angle`` and
+        ``dense_depth``.
     """
     config = config or LossConfig()
     p = {k: pred[k].float() for k in PREDICTION_KEYS}
@@ -307,6 +330,11 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         ray_angle, defined = ray_angle_loss(p["points"], target_points, valid, config.ray_angle_spread)
         optional_terms["ray_angle"] = masked_mean(ray_angle, defined)
         total = total + config.weight_ray_angle * optional_terms["ray_angle"]
+    if config.weight_dense_depth > 0:
+        if "dense_log_depth" not in pred or "depth" not in batch:
+            raise UserError("loss weight_dense_depth needs a model with dense_depth_head and batches with depth maps")
+        optional_terms["dense_depth"] = dense_depth_loss(pred["dense_log_depth"], batch["depth"].float())
+        total = total + config.weight_dense_depth * optional_terms["dense_depth"]
     terms = {
         "3d": masked_mean(l3d, valid),
         "3d_confident": weighted_3d if config.confidence_weighting else masked_mean(confidence * l3d, valid),

@@ -133,15 +133,19 @@ class Trainer:
             state = pretrained.state_dict()
             has_head, wants_head = pretrained.config.relative_pose_head, self.model_config.relative_pose_head
             had_residual, wants_residual = pretrained.config.uv_residual, self.model_config.uv_residual
-            # The differences allowed: adding the relative-pose head and turning the 2D head residual (never undoing
-            # either). The camera pairing is an inference default, not architecture: the new model keeps its own.
+            # The differences allowed: adding the relative-pose head or the dense depth head and turning the 2D head
+            # residual (never undoing any). The camera pairing is an inference default, not architecture: the new model keeps its own.
+            had_dense, wants_dense = pretrained.config.dense_depth_head, self.model_config.dense_depth_head
             same = pretrained.config.replace(relative_pose_head=wants_head, uv_residual=wants_residual,
-                                             pose_pairs=self.model_config.pose_pairs)
-            if same != self.model_config or has_head > wants_head or had_residual > wants_residual:
+                                             dense_depth_head=wants_dense, pose_pairs=self.model_config.pose_pairs)
+            if same != self.model_config or has_head > wants_head or had_residual > wants_residual \
+                    or had_dense > wants_dense:
                 raise UserError(f"model.init_from {spec.init_from} has a different model config than model.preset "
                                 f"{spec.preset!r} with its overrides")
             if wants_head and not has_head:  # the one part the checkpoint lacks keeps its fresh (seeded) initialisation
                 state.update({k: v for k, v in model.state_dict().items() if k.startswith("decoder.heads.relative_pose.")})
+            if wants_dense and not had_dense:  # the training aid starts fresh (seeded), as the pose head above
+                state.update({k: v for k, v in model.state_dict().items() if k.startswith("dense_depth.")})
             if wants_residual and not had_residual:  # a head trained on absolute (u, v) starts at zero: no motion
                 state.update({k: torch.zeros_like(v) for k, v in state.items() if k.startswith("decoder.heads.heads.uv.")})
             model.load_state_dict(state, strict=True)
