@@ -22,6 +22,10 @@ Also reported, because no alignment can hide it: per clip with pixels truly beyo
 no room reaches 15), the ratio of the median predicted depth of the far pixels to that of the near
 ones, beside the true ratio, and over those clips the median of |log(predicted / true ratio)|
 (``far_near_log_error``; 0 = the far range in the right proportion to the near one).
+With ``--dense-head`` (stage 67) each checkpoint's depth maps come from its dense depth head
+(``d4rt.model.dense_depth``, a training aid) instead of its queries: the head's log-depth at encoder resolution,
+resized bilinearly to the clip, exponentiated and scored alike. Why: it says whether the scene tokens hold the depth
+that the queries fail to read out (a decoder limit) or not (an encoder limit).
 Writes JSON (per checkpoint the aggregate and per-clip rows) and prints one line per checkpoint.
 """
 
@@ -39,7 +43,7 @@ import torch
 from d4rt.errors import UserError
 from d4rt.evaluation.benchmarks import Benchmark
 from d4rt.evaluation.harness import aggregate, evaluate_sequence
-from d4rt.evaluation.predictions import d4rt_predictor
+from d4rt.evaluation.predictions import Prediction, d4rt_predictor
 from d4rt.evaluation.synthetic_benchmark import NUM_CLIPS, SIZES, clip_specs
 
 HELD_OUT_SEED = 9_000_000
@@ -61,6 +65,32 @@ def probe_indices() -> list[int]:
 def render_probe_clips(count: int) -> list:
     specs = clip_specs()
     return [replace(specs[i], seed=HELD_OUT_SEED + i).render() for i in probe_indices()[:count]]
+
+
+class DenseHeadPredictor:
+    """Depth maps from a model's dense depth head (module docstring): ``predict(sequence, tasks)`` as the harness
+    asks it, depth only."""
+
+    name = "d4rt-dense-head"
+
+    def __init__(self, checkpoint: str):
+        from d4rt.model import D4RT
+
+        self.model = D4RT.from_pretrained(checkpoint)
+        if self.model.dense_depth is None:
+            raise UserError(f"{checkpoint} has no dense depth head (config dense_depth_head is false)")
+
+    def predict(self, sequence, tasks: set[str]) -> Prediction:
+        if sequence.num_frames > self.model.config.max_frames:
+            raise UserError(f"{sequence.name}: {sequence.num_frames} frames exceed the model's "
+                            f"{self.model.config.max_frames}; the dense head reads one window only")
+        scene = self.model.encode(sequence.rgb)
+        size = self.model.config.image_size
+        with torch.no_grad():
+            log_depth = self.model.dense_depth(scene.tokens, sequence.num_frames, size, size)
+            log_depth = torch.nn.functional.interpolate(log_depth, size=tuple(sequence.image_size), mode="bilinear",
+                                                        align_corners=False)
+        return Prediction(depth=torch.exp(log_depth[0]).numpy())
 
 
 def far_near_ratio(pred: np.ndarray, true: np.ndarray) -> tuple[float, float] | None:
@@ -108,16 +138,20 @@ def main() -> None:
                         help=f"how many of the {available} held-out clips (default {DEFAULT_CLIPS}; {available}: "
                              "as many as the benchmark, about 16 min per checkpoint)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    parser.add_argument("--dense-head", action="store_true",
+                        help="score the depth of each checkpoint's dense depth head instead of its queries")
     args = parser.parse_args()
     if not 1 <= args.clips <= available:
         parser.error(f"--clips must be 1-{available}, got {args.clips}")
     torch.set_num_threads(args.threads)
     try:  # every checkpoint loads (strictly) before the clips are rendered: a bad path fails in one line, at once
-        predictors = {checkpoint: d4rt_predictor(checkpoint) for checkpoint in args.checkpoints}
+        make = DenseHeadPredictor if args.dense_head else d4rt_predictor
+        predictors = {checkpoint: make(checkpoint) for checkpoint in args.checkpoints}
     except UserError as error:
         parser.error(str(error))
     sequences = render_probe_clips(args.clips)
-    report = {"held_out_seed": HELD_OUT_SEED, "clip_definitions": probe_indices()[:args.clips], "models": {}}
+    report = {"held_out_seed": HELD_OUT_SEED, "clip_definitions": probe_indices()[:args.clips],
+              "depth_from": "dense depth head" if args.dense_head else "queries", "models": {}}
     for checkpoint, predictor in predictors.items():
         start = time.perf_counter()
         report["models"][str(checkpoint)] = row = probe(predictor, sequences)

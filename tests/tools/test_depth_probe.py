@@ -58,3 +58,28 @@ def test_the_clip_order_is_balanced_first_and_covers_the_benchmark_design():
     assert sorted(i // 6 for i in first[:8]) == list(range(8))  # any 8 first: every field-of-view band
     sizes = np.bincount([i % 6 for i in first], minlength=6)
     assert sizes.min() >= 2 and sizes.max() - sizes.min() <= 1  # the first 16: every size, about as often
+
+
+def test_the_dense_head_predictor_reads_the_heads_depth_at_the_clip_size(tmp_path):
+    import torch
+
+    from d4rt.config import D4RTConfig
+    from d4rt.errors import UserError
+    from d4rt.model import D4RT
+
+    torch.manual_seed(0)
+    model = D4RT(D4RTConfig.preset("tiny", dense_depth_head=True))
+    model.save_pretrained(tmp_path / "dense")
+    predictor = depth_probe.DenseHeadPredictor(str(tmp_path / "dense"))
+    rgb = np.random.default_rng(0).integers(0, 256, (3, 40, 24, 3), dtype=np.uint8)
+    sequence = EvalSequence("clip", rgb, depth=np.ones((3, 40, 24), np.float32))
+    depth = predictor.predict(sequence, {"depth"}).depth
+    scene = predictor.model.encode(rgb)
+    with torch.no_grad():
+        head = torch.exp(predictor.model.dense_depth(scene.tokens, 3, 64, 64))[0].numpy()
+    assert depth.shape == (3, 40, 24) and np.all(depth > 0)
+    # Resized bilinearly from the 64x64 encoder grid: every value lies within its frame's range of head depths.
+    assert np.all(depth.min((1, 2)) >= head.min((1, 2)) - 1e-5) and np.all(depth.max((1, 2)) <= head.max((1, 2)) + 1e-5)
+    D4RT(D4RTConfig.preset("tiny")).save_pretrained(tmp_path / "plain")
+    with pytest.raises(UserError, match="has no dense depth head"):
+        depth_probe.DenseHeadPredictor(str(tmp_path / "plain"))
