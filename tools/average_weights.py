@@ -5,11 +5,12 @@
 Averaging a fine-tuned model with the model it started from keeps much of what fine-tuning gained while
 undoing part of its drift (Wortsman et al., "Robust fine-tuning of zero-shot models", 2022: WiSE-FT); it
 costs no training. Every checkpoint must have the same config (the averaged model's) and the same
-tensors, with one exception: a model trained with the relative-pose head from one without it (the trainer's
-``init_from`` allows exactly that addition) may be averaged with it. The average then has the head, whose
-tensors come from the checkpoints that have one (their weights renormalised among them), and the config of
-the first of those (its ``pose_pairs`` too, which they must share). Weights must be positive and are
-normalised to sum to 1. Writes ``config.json`` and ``model.safetensors`` (D4RT.from_pretrained reads them)
+tensors, with two exceptions, the parts the trainer's ``init_from`` may add to a checkpoint: the relative-pose
+head and the dense depth head (a training aid; stage 67). A model trained with such a part from one without it may
+be averaged with it. The average then has the part, whose tensors come from the checkpoints that have it (their
+weights renormalised among them); its config is that of the first checkpoint with the pose head (its
+``pose_pairs`` too, which they must share) with every added part that any checkpoint has. Weights must be positive
+and are normalised to sum to 1. Writes ``config.json`` and ``model.safetensors`` (D4RT.from_pretrained reads them)
 and prints what it averaged.
 """
 
@@ -25,23 +26,25 @@ from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
 from d4rt.model.weights import CONFIG_NAME, WEIGHTS_NAME, read_checkpoint
 
-# The tensors of the one part a checkpoint may lack (see the module docstring).
-POSE_HEAD_PREFIX = "decoder.heads.relative_pose."
+# The parts a checkpoint may lack (see the module docstring): config flag -> the prefix of the part's tensors.
+ADDABLE_PARTS = {"relative_pose_head": "decoder.heads.relative_pose.", "dense_depth_head": "dense_depth."}
 
 
 def _shared_config(configs: list[D4RTConfig]) -> D4RTConfig:
-    """The averaged model's config: the checkpoints' common config, or, when some add the relative-pose head,
-    the config of the first that has it."""
+    """The averaged model's config: the checkpoints' common config, or, when some add a part, the config of the
+    first with the relative-pose head (else the first) with every part that any of them adds."""
     if all(c == configs[0] for c in configs):
         return configs[0]
     headed = [c for c in configs if c.relative_pose_head]
-    headless = [c.replace(relative_pose_head=False, pose_pairs="first") for c in configs]
-    if not headed or any(c != headless[0] for c in headless):
+    # Without a pose head the camera pairing is not compared (it only names how that head's poses are chained).
+    bare = [c.replace(relative_pose_head=False, dense_depth_head=False,
+                      pose_pairs="first" if headed else c.pose_pairs) for c in configs]
+    if any(c != bare[0] for c in bare):
         raise UserError("the checkpoints have different configs: only one architecture can be averaged")
     if any(c.pose_pairs != headed[0].pose_pairs for c in headed):
         raise UserError("the checkpoints with a relative-pose head name different pose_pairs: set one in their "
                         "config.json files")
-    return headed[0]
+    return (headed or configs)[0].replace(dense_depth_head=any(c.dense_depth_head for c in configs))
 
 
 def average(directories: list[Path], weights: list[float]) -> tuple[dict[str, torch.Tensor], str]:
@@ -54,7 +57,7 @@ def average(directories: list[Path], weights: list[float]) -> tuple[dict[str, to
     configs, states = zip(*(read_checkpoint(d) for d in directories))
     config = _shared_config(list(configs))
     keys = sorted(set().union(*(s.keys() for s in states)))
-    if any(not key.startswith(POSE_HEAD_PREFIX) for s in states for key in set(keys) - s.keys()):
+    if any(not key.startswith(tuple(ADDABLE_PARTS.values())) for s in states for key in set(keys) - s.keys()):
         raise UserError("the checkpoints hold different tensors")
     out = {}
     for key in keys:

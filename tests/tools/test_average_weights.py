@@ -54,7 +54,7 @@ def test_a_model_that_added_the_pose_head_averages_with_its_start(tmp_path):
     tuned = D4RT(headed_config).save_pretrained(tmp_path / "tuned")
     tensors, config_text = average_weights.average([start, tuned], [3.0, 1.0])
     first, second = D4RT.from_pretrained(start).state_dict(), D4RT.from_pretrained(tuned).state_dict()
-    head_keys = [k for k in second if k.startswith(average_weights.POSE_HEAD_PREFIX)]
+    head_keys = [k for k in second if k.startswith(average_weights.ADDABLE_PARTS["relative_pose_head"])]
     assert head_keys and set(tensors) == set(second)
     for key, value in tensors.items():
         expected = second[key] if key in head_keys else 0.75 * first[key] + 0.25 * second[key]
@@ -75,3 +75,21 @@ def test_a_model_that_added_the_pose_head_averages_with_its_start(tmp_path):
     deeper = D4RT(D4RTConfig.preset("tiny", decoder_depth=2, relative_pose_head=True)).save_pretrained(tmp_path / "d")
     with pytest.raises(UserError, match="different configs"):
         average_weights.average([start, deeper], [0.5, 0.5])
+
+
+def test_a_model_that_added_the_dense_depth_head_averages_with_its_start(tmp_path):
+    """As the pose head: a start like the shipped model (pose head, adjacent pairs) averaged with a run that added the
+    dense depth head (stage 67) has the head whole from that run and the run's config."""
+    start_config = D4RTConfig.preset("tiny", relative_pose_head=True, pose_pairs="adjacent")
+    torch.manual_seed(0)
+    start = D4RT(start_config).save_pretrained(tmp_path / "start")
+    torch.manual_seed(1)
+    tuned = D4RT(start_config.replace(dense_depth_head=True)).save_pretrained(tmp_path / "tuned")
+    tensors, config_text = average_weights.average([start, tuned], [1.0, 1.0])
+    first, second = D4RT.from_pretrained(start).state_dict(), D4RT.from_pretrained(tuned).state_dict()
+    head_keys = [k for k in second if k.startswith(average_weights.ADDABLE_PARTS["dense_depth_head"])]
+    assert head_keys and set(tensors) == set(second)
+    for key, value in tensors.items():
+        expected = second[key] if key in head_keys else 0.5 * first[key] + 0.5 * second[key]
+        torch.testing.assert_close(value, expected, rtol=1e-6, atol=1e-7)
+    assert D4RTConfig.from_json(config_text) == start_config.replace(dense_depth_head=True)
