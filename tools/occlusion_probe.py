@@ -11,7 +11,10 @@ frame's camera, visible where the probability exceeds 0.5) and scored with the h
 
 Per clip and checkpoint: ``oa``, ``apd3d``, ``aj`` (the benchmark's median scaling); OA at the thresholds in
 ``THRESHOLDS``; the true and the predicted visible fraction; ``occluded_recall``, the share of truly hidden points
-(occluded or out of frame) called hidden. Per checkpoint their means over clips; for every checkpoint after the first,
+(occluded or out of frame) called hidden; ``hidden_out_of_frame``, the share of truly hidden points that are out of
+frame or behind the camera (the rest are occluded); and ``oa_in_frame_gate``, OA when a point whose predicted (u, v)
+leaves the image is called hidden whatever its visibility (a point the model itself puts out of frame cannot be
+seen). Per checkpoint their means over clips; for every checkpoint after the first,
 the paired bootstrap of the per-clip OA against the first (``tools/compare_evals.py``). Writes JSON, prints a table.
 """
 
@@ -42,15 +45,32 @@ THRESHOLDS = (0.3, 0.5, 0.7, 0.9)
 TRACK_SCALING = get_benchmark(NAME).track_scaling  # as d4rt eval scores synthetic-dynamic-v1
 
 
-def visibility_scores(probability: np.ndarray, visible: np.ndarray) -> dict:
+def visibility_scores(probability: np.ndarray, visible: np.ndarray, predicted_in_frame: np.ndarray | None = None,
+                      truly_in_frame: np.ndarray | None = None) -> dict:
     """probability, visible: (T, N) predicted probability and truth -> OA per threshold, visible fractions and the
-    recall of hidden points at 0.5."""
+    recall of hidden points at 0.5; with ``predicted_in_frame`` (T, N) bool (the predicted (u, v) inside the image)
+    also ``oa_in_frame_gate``, with ``truly_in_frame`` (T, N) bool also ``hidden_out_of_frame`` (module docstring)."""
     hidden = ~visible
     called_hidden = probability <= 0.5
     out = {f"oa@{t}": float(np.mean((probability > t) == visible)) for t in THRESHOLDS}
     out.update(constant_oa=float(np.mean(visible)), predicted_visible=float(np.mean(~called_hidden)),
                occluded_recall=float(np.mean(called_hidden[hidden])) if hidden.any() else float("nan"))
+    if predicted_in_frame is not None:
+        out["oa_in_frame_gate"] = float(np.mean(((probability > 0.5) & predicted_in_frame) == visible))
+    if truly_in_frame is not None:
+        out["hidden_out_of_frame"] = float(np.mean(~truly_in_frame[hidden])) if hidden.any() else float("nan")
     return out
+
+
+def in_frame(points: np.ndarray, intrinsics: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
+    """points: (T, N, 3) in each frame's camera; intrinsics: (T, 3, 3) pixels -> (T, N) bool, in front of the
+    camera and projecting inside the image (pixel centres at i + 0.5, so the image spans [0, W] x [0, H])."""
+    z = points[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = intrinsics[:, None, 0, 0] * points[..., 0] / z + intrinsics[:, None, 0, 2] + 0.5
+        y = intrinsics[:, None, 1, 1] * points[..., 1] / z + intrinsics[:, None, 1, 2] + 0.5
+    height, width = image_size
+    return (z > 0) & (x >= 0) & (x <= width) & (y >= 0) & (y <= height)
 
 
 def main() -> None:
@@ -79,7 +99,11 @@ def main() -> None:
             probability = predicted.visibility.T
             metrics = tapvid3d_metrics(predicted.points.transpose(1, 0, 2), probability > 0.5, tracks.points,
                                        tracks.visible, track_intrinsics(sequence), sequence.image_size, TRACK_SCALING)
-            rows[name].append({"clip": spec.name, **metrics, **visibility_scores(probability, tracks.visible)})
+            uv = predicted.uv.transpose(1, 0, 2)
+            predicted_in_frame = np.isfinite(uv).all(-1) & (uv >= 0).all(-1) & (uv <= 1).all(-1)
+            truly_in_frame = in_frame(tracks.points, sequence.intrinsics, sequence.image_size)
+            rows[name].append({"clip": spec.name, **metrics, **visibility_scores(probability, tracks.visible,
+                                                                                 predicted_in_frame, truly_in_frame)})
     report = {"held_out_seed": HELD_OUT_SEED, "clips": [s.name for s in specs], "models": {}, "paired_oa": {}}
     for name, clip_rows in rows.items():
         keys = [k for k in clip_rows[0] if k != "clip"]
@@ -98,7 +122,8 @@ def main() -> None:
         against = (f"  vs first {paired['difference']:+.4f} [{paired['low']:+.4f}, {paired['high']:+.4f}]"
                    if paired else "")
         print(f"{name}: OA {m['oa']:.4f} (every point visible: {m['constant_oa']:.4f}; called visible "
-              f"{m['predicted_visible']:.3f}, hidden points found {m['occluded_recall']:.3f}) APD3D {m['apd3d']:.4f}"
+              f"{m['predicted_visible']:.3f}, hidden points found {m['occluded_recall']:.3f}, of them out of frame "
+              f"{m['hidden_out_of_frame']:.3f}; in-frame gate OA {m['oa_in_frame_gate']:.4f}) APD3D {m['apd3d']:.4f}"
               f"{against}")
     print(f"wrote {args.out}")
 
