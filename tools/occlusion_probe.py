@@ -14,7 +14,8 @@ Per clip and checkpoint: ``oa``, ``apd3d``, ``aj`` (the benchmark's median scali
 (occluded or out of frame) called hidden; ``hidden_out_of_frame``, the share of truly hidden points that are out of
 frame or behind the camera (the rest are occluded); and ``oa_in_frame_gate``, OA when a point whose predicted (u, v)
 leaves the image is called hidden whatever its visibility (a point the model itself puts out of frame cannot be
-seen). Per checkpoint their means over clips; for every checkpoint after the first,
+seen), with the paired bootstrap of the gated OA against the plain OA per clip. Per checkpoint their means over
+clips; for every checkpoint after the first,
 the paired bootstrap of the per-clip OA against the first (``tools/compare_evals.py``). Writes JSON, prints a table.
 """
 
@@ -109,6 +110,10 @@ def main() -> None:
         keys = [k for k in clip_rows[0] if k != "clip"]
         report["models"][name] = {"mean": {k: float(np.nanmean([r[k] for r in clip_rows])) for k in keys},
                                   "clips": clip_rows}
+    report["paired_in_frame_gate"] = {  # per checkpoint: the gated OA against its own plain OA, clip by clip
+        name: paired_bootstrap(np.array([r["oa"] for r in clip_rows]),
+                               np.array([r["oa_in_frame_gate"] for r in clip_rows]),
+                               np.ones(len(clip_rows)), lower_is_better=False) for name, clip_rows in rows.items()}
     reference, *others = args.checkpoints
     base = np.array([r["oa"] for r in rows[reference]])
     for name in others:
@@ -121,6 +126,8 @@ def main() -> None:
         paired = report["paired_oa"].get(name)
         against = (f"  vs first {paired['difference']:+.4f} [{paired['low']:+.4f}, {paired['high']:+.4f}]"
                    if paired else "")
+        gate = report["paired_in_frame_gate"][name]
+        print(f"{name}: in-frame gate OA - OA {gate['difference']:+.4f} [{gate['low']:+.4f}, {gate['high']:+.4f}]")
         print(f"{name}: OA {m['oa']:.4f} (every point visible: {m['constant_oa']:.4f}; called visible "
               f"{m['predicted_visible']:.3f}, hidden points found {m['occluded_recall']:.3f}, of them out of frame "
               f"{m['hidden_out_of_frame']:.3f}; in-frame gate OA {m['oa_in_frame_gate']:.4f}) APD3D {m['apd3d']:.4f}"
