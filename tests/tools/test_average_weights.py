@@ -44,6 +44,17 @@ def test_the_average_is_weighted_and_loads(tmp_path):
         average_weights.average([a, b], [1.0, 0.0])
 
 
+def assert_part_whole_and_rest_weighted(tensors, start, tuned, part: str, start_weight: float) -> None:
+    """The average ``tensors`` of ``start`` (without ``part``) and ``tuned`` (with it) holds the part whole from
+    ``tuned`` and every shared tensor weighted ``start_weight`` : ``1 - start_weight``."""
+    first, second = D4RT.from_pretrained(start).state_dict(), D4RT.from_pretrained(tuned).state_dict()
+    part_keys = [k for k in second if k.startswith(average_weights.ADDABLE_PARTS[part])]
+    assert part_keys and set(tensors) == set(second)
+    for key, value in tensors.items():
+        expected = second[key] if key in part_keys else start_weight * first[key] + (1 - start_weight) * second[key]
+        torch.testing.assert_close(value, expected, rtol=1e-6, atol=1e-7)
+
+
 def test_a_model_that_added_the_pose_head_averages_with_its_start(tmp_path):
     """The trainer may add the relative-pose head to a headless start (init_from): the average of the two has
     the head, taken whole from the checkpoint that has it, and every shared tensor weighted."""
@@ -53,12 +64,7 @@ def test_a_model_that_added_the_pose_head_averages_with_its_start(tmp_path):
     torch.manual_seed(1)
     tuned = D4RT(headed_config).save_pretrained(tmp_path / "tuned")
     tensors, config_text = average_weights.average([start, tuned], [3.0, 1.0])
-    first, second = D4RT.from_pretrained(start).state_dict(), D4RT.from_pretrained(tuned).state_dict()
-    head_keys = [k for k in second if k.startswith(average_weights.ADDABLE_PARTS["relative_pose_head"])]
-    assert head_keys and set(tensors) == set(second)
-    for key, value in tensors.items():
-        expected = second[key] if key in head_keys else 0.75 * first[key] + 0.25 * second[key]
-        torch.testing.assert_close(value, expected, rtol=1e-6, atol=1e-7)
+    assert_part_whole_and_rest_weighted(tensors, start, tuned, "relative_pose_head", 0.75)
     out = tmp_path / "soup"
     out.mkdir()
     from safetensors.torch import save_file
@@ -86,10 +92,5 @@ def test_a_model_that_added_the_dense_depth_head_averages_with_its_start(tmp_pat
     torch.manual_seed(1)
     tuned = D4RT(start_config.replace(dense_depth_head=True)).save_pretrained(tmp_path / "tuned")
     tensors, config_text = average_weights.average([start, tuned], [1.0, 1.0])
-    first, second = D4RT.from_pretrained(start).state_dict(), D4RT.from_pretrained(tuned).state_dict()
-    head_keys = [k for k in second if k.startswith(average_weights.ADDABLE_PARTS["dense_depth_head"])]
-    assert head_keys and set(tensors) == set(second)
-    for key, value in tensors.items():
-        expected = second[key] if key in head_keys else 0.5 * first[key] + 0.5 * second[key]
-        torch.testing.assert_close(value, expected, rtol=1e-6, atol=1e-7)
+    assert_part_whole_and_rest_weighted(tensors, start, tuned, "dense_depth_head", 0.5)
     assert D4RTConfig.from_json(config_text) == start_config.replace(dense_depth_head=True)
