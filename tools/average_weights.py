@@ -24,10 +24,7 @@ from safetensors.torch import save_file
 
 from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
-from d4rt.model.weights import CONFIG_NAME, WEIGHTS_NAME, read_checkpoint
-
-# The parts a checkpoint may lack (see the module docstring): config flag -> the prefix of the part's tensors.
-ADDABLE_PARTS = {"relative_pose_head": "decoder.heads.relative_pose.", "dense_depth_head": "dense_depth."}
+from d4rt.model.weights import ADDABLE_PARTS, CONFIG_NAME, WEIGHTS_NAME, read_checkpoint
 
 
 def _shared_config(configs: list[D4RTConfig]) -> D4RTConfig:

@@ -39,6 +39,7 @@ from d4rt.evaluation.benchmarks import get_benchmark  # noqa: E402
 from d4rt.evaluation.harness import track_intrinsics  # noqa: E402
 from d4rt.evaluation.metrics.tracks import tapvid3d_metrics  # noqa: E402
 from d4rt.evaluation.synthetic_benchmark import NAME, clip_specs  # noqa: E402
+from d4rt.geometry.camera import project  # noqa: E402
 from d4rt.model import D4RT  # noqa: E402
 
 HELD_OUT_SEED = 7_000_000  # as tools/measure_focal.py --held-out
@@ -66,10 +67,9 @@ def visibility_scores(probability: np.ndarray, visible: np.ndarray, predicted_in
 def in_frame(points: np.ndarray, intrinsics: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
     """points: (T, N, 3) in each frame's camera; intrinsics: (T, 3, 3) pixels -> (T, N) bool, in front of the
     camera and projecting inside the image (pixel centres at i + 0.5, so the image spans [0, W] x [0, H])."""
-    z = points[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        x = intrinsics[:, None, 0, 0] * points[..., 0] / z + intrinsics[:, None, 0, 2] + 0.5
-        y = intrinsics[:, None, 1, 1] * points[..., 1] / z + intrinsics[:, None, 1, 2] + 0.5
+        xy, z = project(points, intrinsics[:, None])
+    x, y = xy[..., 0] + 0.5, xy[..., 1] + 0.5
     height, width = image_size
     return (z > 0) & (x >= 0) & (x <= width) & (y >= 0) & (y <= height)
 

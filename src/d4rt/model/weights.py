@@ -20,6 +20,9 @@ CONFIG_NAME = "config.json"
 WEIGHTS_NAME = "model.safetensors"
 BUNDLED_MODEL = "d4rt-tiny"
 _SHOWN = 5  # mismatched keys named in one error line
+# Parts that ``model.init_from`` may add to a checkpoint without them (never remove), and that
+# tools/average_weights.py takes whole from the checkpoints that have them: config flag -> prefix of their tensors.
+ADDABLE_PARTS = {"relative_pose_head": "decoder.heads.relative_pose.", "dense_depth_head": "dense_depth."}
 
 
 def bundled_model_dir() -> Path:

@@ -41,7 +41,7 @@ from d4rt.config import D4RTConfig
 from d4rt.devices import native_bf16
 from d4rt.errors import UserError
 from d4rt.model import D4RT
-from d4rt.model.weights import CONFIG_NAME, WEIGHTS_NAME, check_state_dict
+from d4rt.model.weights import ADDABLE_PARTS, CONFIG_NAME, WEIGHTS_NAME, check_state_dict
 from d4rt.training import checkpoint as ckpt
 from d4rt.training.config import TrainConfig
 from d4rt.training.data import SampleStream, training_loader
@@ -131,21 +131,20 @@ class Trainer:
         if spec.init_from is not None:
             pretrained = D4RT.from_pretrained(spec.init_from)
             state = pretrained.state_dict()
-            has_head, wants_head = pretrained.config.relative_pose_head, self.model_config.relative_pose_head
             had_residual, wants_residual = pretrained.config.uv_residual, self.model_config.uv_residual
-            # The differences allowed: adding the relative-pose head or the dense depth head and turning the 2D head
-            # residual (never undoing any). The camera pairing is an inference default, not architecture: the new model keeps its own.
-            had_dense, wants_dense = pretrained.config.dense_depth_head, self.model_config.dense_depth_head
-            same = pretrained.config.replace(relative_pose_head=wants_head, uv_residual=wants_residual,
-                                             dense_depth_head=wants_dense, pose_pairs=self.model_config.pose_pairs)
-            if same != self.model_config or has_head > wants_head or had_residual > wants_residual \
-                    or had_dense > wants_dense:
+            # The differences allowed: adding a part of ADDABLE_PARTS (the relative-pose head, the dense depth head)
+            # and turning the 2D head residual (never undoing any). The camera pairing is an inference default, not
+            # architecture: the new model keeps its own.
+            wanted = {flag: getattr(self.model_config, flag) for flag in ADDABLE_PARTS}
+            dropped = any(getattr(pretrained.config, flag) > wants for flag, wants in wanted.items())
+            same = pretrained.config.replace(uv_residual=wants_residual, pose_pairs=self.model_config.pose_pairs,
+                                             **wanted)
+            if same != self.model_config or dropped or had_residual > wants_residual:
                 raise UserError(f"model.init_from {spec.init_from} has a different model config than model.preset "
                                 f"{spec.preset!r} with its overrides")
-            if wants_head and not has_head:  # the one part the checkpoint lacks keeps its fresh (seeded) initialisation
-                state.update({k: v for k, v in model.state_dict().items() if k.startswith("decoder.heads.relative_pose.")})
-            if wants_dense and not had_dense:  # the training aid starts fresh (seeded), as the pose head above
-                state.update({k: v for k, v in model.state_dict().items() if k.startswith("dense_depth.")})
+            for flag, prefix in ADDABLE_PARTS.items():  # a part the checkpoint lacks keeps its fresh (seeded) weights
+                if wanted[flag] and not getattr(pretrained.config, flag):
+                    state.update({k: v for k, v in model.state_dict().items() if k.startswith(prefix)})
             if wants_residual and not had_residual:  # a head trained on absolute (u, v) starts at zero: no motion
                 state.update({k: torch.zeros_like(v) for k, v in state.items() if k.startswith("decoder.heads.heads.uv.")})
             model.load_state_dict(state, strict=True)
