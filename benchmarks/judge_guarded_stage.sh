@@ -38,6 +38,10 @@
 # (tools/measure_focal.py --held-out, measured on the second core as each checkpoint is written). Why: stage 57's S,
 # chosen by camera, read focal worse than its later checkpoints on every held-out figure but the median, which moves
 # by a few points with the draw of 48 clips; the mean error follows the fit's slope and spread.
+# PAIRING=best in the environment (stage 73 on) scores each model's camera by the lowest held-out mean ATE over the
+# pairings camera_probe reports (first, adjacent, graph) instead of adjacent's, and writes that pairing into the
+# candidate's config.json (benchmarks/judge_pairing.py). Why: the pairing is chosen per model on held-out clips
+# (stage 14), and models trained on learn long camera gaps that a chain of one-frame fits does not use (stage 71).
 # Resumable (stage 41 on): every camera probe is kept per checkpoint in $J/probe-cache (the figures of one model do not
 # depend on the others probed with it; the judged checkpoints and the start are probed on the second core while
 # training runs), and a stopped judge started again skips each average, focal measurement and eval it already wrote
@@ -110,8 +114,10 @@ else
     for c in $CK; do focal_of_checkpoint $c; done
     S=$(python - $(for c in $CK; do echo $c=$(focal_file $c); done) 2>> $J/judge.log <<'P'
 import json, os, sys
+sys.path.insert(0, 'benchmarks')
+from judge_pairing import camera_ate
 J = os.environ['J']
-ate = lambda d, k: d['models'][k]['trajectory_ate']['adjacent']['mean']
+ate = lambda d, k: camera_ate(d['models'][k])
 start = json.load(open(f"{J}/probe-cache/{(J + '/start').replace('/', '_')}.json"))
 limit = float(os.environ.get('CAMERA_TOLERANCE', '1')) * ate(start, J + '/start')
 d = json.load(open(J + '/camera-probe-24-frames.json'))
@@ -129,7 +135,8 @@ P
     S=$(python -c "
 import json, os
 d=json.load(open(os.environ['J'] + '/camera-probe-24-frames.json'))
-print(min(d['models'], key=lambda k: d['models'][k]['trajectory_ate']['adjacent']['mean']))")
+import sys; sys.path.insert(0, 'benchmarks'); from judge_pairing import camera_ate
+print(min(d['models'], key=lambda k: camera_ate(d['models'][k])))")
   fi
   echo "S=$S $(date -u)" >> $J/judge.log
 fi
@@ -150,7 +157,8 @@ W=$(python -c "
 import json, os
 J=os.environ['J']
 d=json.load(open(J + '/camera-probe-candidates-24-frames.json'))['models']
-ate={k: v['trajectory_ate']['adjacent']['mean'] for k, v in d.items()}
+import sys; sys.path.insert(0, 'benchmarks'); from judge_pairing import camera_ate
+ate={k: camera_ate(v) for k, v in d.items()}
 tolerance=float(os.environ.get('CAMERA_TOLERANCE', '1'))
 ok=[w for w in sorted(os.environ['AVERAGE_WEIGHTS'].split(), key=float, reverse=True)
     if ate[J + '/avg-' + w] <= tolerance * ate[J + '/start']]
@@ -188,7 +196,12 @@ else
   W=${W%% *}  # the rule of stages 29-31: the largest w that kept the camera
   echo "w=$W $(date -u)" >> $J/judge.log
 fi
-[ -d $J/candidate ] || cp -r $J/avg-$W $J/candidate
+if [ ! -d $J/candidate ]; then
+  cp -r $J/avg-$W $J/candidate
+  # PAIRING=best: the candidate carries the pairing that gave its held-out figure (d4rt eval uses the model's own)
+  [ "${PAIRING:-adjacent}" = best ] && python benchmarks/judge_pairing.py $J/camera-probe-candidates-24-frames.json \
+    $J/avg-$W $J/candidate/config.json >> $J/judge.log
+fi
 focal_once --checkpoint $J/candidate --out $J/focal.json
 SHIPPED_FOCAL=/work/main/docs/model-card/focal.json
 if [ "${FOCAL_GATE:-shipped}" = noninferior ]; then

@@ -34,9 +34,13 @@ from d4rt.errors import UserError
 # Which camera each frame's pose is fitted against (Reconstruction's ``pose_pairs``): "first", the paper's
 # recipe, fits frame i against the window's first camera; "adjacent" fits it against frame i - 1 and chains the
 # fits, so every query's t_src - t_cam gap is 1 (a learned model's error grows with that gap) at the price of
-# drift along the chain. Both are exact on the oracle and cost the same queries. Here, in the torch-free
-# foundation, so that the command line and the model config share one list.
-POSE_PAIRS = ("first", "adjacent")
+# drift along the chain. "graph" fits frame i against frames i - 1, i - 2, i - 4, ... (GRAPH_GAPS, inside the
+# window) and solves every pose at once by least squares over all those fits (rotation averaging, then the
+# positions): short gaps keep a chain's accuracy while the long ones bound its drift, for GRAPH_GAPS times the
+# camera queries. All three are exact on the oracle. Here, in the torch-free foundation, so that the command line
+# and the model config share one list.
+POSE_PAIRS = ("first", "adjacent", "graph")
+GRAPH_GAPS = (1, 2, 4, 8, 16)
 
 
 def check_pose_pairs(pairs: str, name: str = "pose_pairs") -> str:
@@ -107,7 +111,8 @@ class D4RTConfig:
     Inference default
         pose_pairs: the camera recipe's pairing that ``Reconstruction.from_model`` uses for this model when the
             caller names none: ``"first"`` (the paper's: each frame against the window's first camera) or
-            ``"adjacent"`` (against the previous frame, the fits chained); see ``POSE_PAIRS``. Saved with the
+            ``"adjacent"`` (against the previous frame, the fits chained) or ``"graph"`` (against frames
+            i - 1, i - 2, i - 4, ..., every pose solved at once); see ``POSE_PAIRS``. Saved with the
             weights because it is chosen per model, on held-out clips; not part of the architecture.
 
     Runtime

@@ -326,7 +326,7 @@ def test_adjacent_pose_pairs_are_exact_and_chain_across_windows():
         paper = clip.reconstruction(**options).cameras()
         assert np.allclose(cams.intrinsics, paper.intrinsics)  # the same frame-i answers serve the intrinsics
         assert np.abs(cams.cam_to_world - paper.cam_to_world).max() < 1e-4 * scale
-    with pytest.raises(UserError, match="pose_pairs must be one of first, adjacent"):
+    with pytest.raises(UserError, match="pose_pairs must be one of first, adjacent, graph"):
         clip.reconstruction(pose_pairs="previous")
 
     class Recording:  # the oracle, keeping every query it is asked
@@ -354,5 +354,78 @@ def test_adjacent_pose_pairs_are_exact_and_chain_across_windows():
         assert Reconstruction.from_model(model, clip.rgb).pose_pairs == own
         assert Reconstruction.from_model(model, clip.rgb, pose_pairs="first").pose_pairs == "first"
     assert D4RTConfig.from_json(D4RTConfig.preset("tiny", pose_pairs="adjacent").to_json()).pose_pairs == "adjacent"
-    with pytest.raises(UserError, match="config pose_pairs must be one of first, adjacent"):
+    with pytest.raises(UserError, match="config pose_pairs must be one of first, adjacent, graph"):
         D4RTConfig.preset("tiny", pose_pairs="previous")
+
+
+def test_graph_pose_pairs_are_exact_and_ask_the_gaps_inside_each_window():
+    """pose_pairs="graph" fits frame i against i - 1, i - 2, i - 4, ... and solves all poses at once: exact on the
+    oracle in one window and over three (where gaps 8 and 16 do not fit), asking only the gaps that fit."""
+    clip = render_clip(8, 24, 32, 48, environment="room", num_objects=5, camera_motion="orbit", moving_fraction=0.8)
+    gt = invert_rigid(clip.cam_to_world[0]) @ clip.cam_to_world
+    scale = np.linalg.norm(gt[:, :3, 3], axis=1).max() + 1.0
+    for options in ({}, {"window": 8, "overlap": 3}):
+        cams = clip.reconstruction(pose_pairs="graph", **options).cameras()
+        assert rotation_error_deg(cams.cam_to_world, gt).max() < 0.01
+        assert np.abs(cams.cam_to_world[:, :3, 3] - gt[:, :3, 3]).max() < 1e-4 * scale
+
+    asked = []
+
+    class Recording:  # the oracle, keeping every query it is asked
+        num_frames = clip.num_frames
+
+        def query(self, queries):
+            asked.append(np.array(queries))
+            return clip.oracle.query(queries)
+
+    # Per frame one query per grid point in its own camera and one per gap that fits, always an earlier camera.
+    Reconstruction(Recording(), clip.rgb, pose_pairs="graph").cameras()
+    queries = np.concatenate(asked)
+    assert set(np.abs(queries[:, 2] - queries[:, 4]).astype(int)) == {0, 1, 2, 4, 8, 16}
+    assert (queries[:, 4] <= queries[:, 2]).all()
+    fitting = sum(1 + sum(i - g >= 0 for g in (1, 2, 4, 8, 16)) for i in range(clip.num_frames))
+    assert len(np.concatenate(asked)) == fitting * 12 * 12
+
+
+def test_pose_graph_averages_inconsistent_fits_and_names_a_frame_left_out():
+    """With noisy relative fits the solution is a set of proper rigid poses closer to the truth than the chain
+    of adjacent fits alone; a chain alone gives the chained poses; a frame no fit reaches is a UserError."""
+    from d4rt.geometry.transforms import invert_rigid as inv
+    from d4rt.reconstruction.cameras import pose_graph
+
+    rng = np.random.default_rng(0)
+    t = 16
+    truth = np.broadcast_to(np.eye(4), (t, 4, 4)).copy()
+    for i in range(1, t):
+        step = np.eye(4)
+        step[:3, :3] = torch.linalg.matrix_exp(torch.tensor(_skew(rng.normal(0, 0.05, 3)))).numpy()
+        step[:3, 3] = rng.normal(0, 0.1, 3) + [0.2, 0, 0]
+        truth[i] = truth[i - 1] @ step
+
+    def fit(i, j, noise):  # camera i -> camera j, with a random rotation error of about ``noise`` radians
+        exact = inv(truth[j]) @ truth[i]
+        wobble = np.eye(4)
+        wobble[:3, :3] = torch.linalg.matrix_exp(torch.tensor(_skew(rng.normal(0, noise, 3)))).numpy()
+        wobble[:3, 3] = rng.normal(0, noise, 3)
+        return wobble @ exact
+
+    chain_edges = np.array([(i, i - 1) for i in range(1, t)])
+    exact = pose_graph(t, chain_edges, np.stack([inv(truth[j]) @ truth[i] for i, j in chain_edges]))
+    assert np.abs(exact - truth).max() < 1e-9
+    edges = np.array([(i, i - g) for g in (1, 2, 4, 8) for i in range(g, t)])
+    fits = np.stack([fit(i, j, 0.02) for i, j in edges])
+    chained = np.broadcast_to(np.eye(4), (t, 4, 4)).copy()
+    for i in range(1, t):
+        chained[i] = chained[i - 1] @ fits[i - 1]  # the first t - 1 edges are the adjacent ones
+    graph = pose_graph(t, edges, fits)
+    rotations = graph[:, :3, :3]
+    assert np.allclose(rotations @ rotations.transpose(0, 2, 1), np.eye(3), atol=1e-9)
+    assert np.allclose(np.linalg.det(rotations), 1.0)
+    error = lambda poses: np.linalg.norm(poses[:, :3, 3] - truth[:, :3, 3], axis=1).mean()
+    assert error(graph) < 0.6 * error(chained)
+    with pytest.raises(UserError, match="not every one of the 4 frames is joined to frame 0"):
+        pose_graph(4, np.array([(1, 0), (3, 2)]), np.stack([np.eye(4)] * 2))
+
+
+def _skew(w):
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])

@@ -96,3 +96,57 @@ def relative_poses(points_here: np.ndarray, points_there: np.ndarray, weights: n
     sim = batched_umeyama(*(torch.from_numpy(np.asarray(a, dtype=np.float64))
                             for a in (points_here, points_there, weights)))
     return sim.matrix().numpy()
+
+
+def pose_graph(num_frames: int, edges: np.ndarray, transforms: np.ndarray) -> np.ndarray:
+    """Every frame's camera-to-world pose (the world: camera 0) from relative fits between pairs of frames, by
+    linear least squares: rotations first (chordal averaging, each projected onto SO(3)), then positions.
+
+    edges: (E, 2) int frame pairs (i, j); transforms: (E, 4, 4), each taking camera-i coordinates to camera-j
+    coordinates (as :func:`relative_poses` returns). Every frame must be joined to frame 0 through the edges.
+    Returns (num_frames, 4, 4). Exact when the fits agree (a chain of adjacent fits alone gives the chained poses).
+    Why linear: with camera-to-world R_i, c_i, a fit (A, b) says R_i = R_j A and c_i - c_j = R_j b, both linear
+    in the unknowns, so one dense solve per stage answers a clip's few dozen frames at once.
+    """
+    edges = np.asarray(edges, dtype=np.int64)
+    if edges.ndim != 2 or edges.shape[1] != 2 or len(edges) != len(transforms):
+        raise ValueError(f"edges must be (E, 2) beside transforms (E, 4, 4), got {edges.shape} and {np.shape(transforms)}")
+    if num_frames == 1:
+        return np.eye(4)[None]
+    unknown = num_frames - 1  # frame 0 is fixed at the identity
+    rows = 3 * len(edges)
+    # Rotation rows: R_i^T - A^T R_j^T = 0, for each of the 3 columns of R^T (rows of R) at once.
+    m = np.zeros((rows, 3 * unknown))
+    rhs = np.zeros((rows, 3))
+    for e, ((i, j), t) in enumerate(zip(edges, transforms)):
+        block = slice(3 * e, 3 * e + 3)
+        for frame, coef in ((i, np.eye(3)), (j, -t[:3, :3].T)):
+            if frame == 0:
+                rhs[block] -= coef  # R_0 = I moves to the right-hand side
+            else:
+                m[block, 3 * (frame - 1):3 * frame] += coef
+    _check_connected(m, num_frames)
+    solution = np.linalg.lstsq(m, rhs, rcond=None)[0]  # (3 * unknown, 3): stacked R_i^T
+    rotations = np.concatenate([np.eye(3)[None], solution.reshape(unknown, 3, 3).transpose(0, 2, 1)])
+    u, _, vt = np.linalg.svd(rotations)
+    flip = np.sign(np.linalg.det(u @ vt))
+    rotations = u @ (vt * np.stack([np.ones_like(flip), np.ones_like(flip), flip], -1)[..., None])
+    # Position rows: c_i - c_j = R_j b.
+    m = np.zeros((rows, 3 * unknown))
+    rhs = np.zeros(rows)
+    for e, ((i, j), t) in enumerate(zip(edges, transforms)):
+        block = slice(3 * e, 3 * e + 3)
+        rhs[block] = rotations[j] @ t[:3, 3]
+        for frame, sign in ((i, 1.0), (j, -1.0)):
+            if frame:
+                m[block, 3 * (frame - 1):3 * frame] += sign * np.eye(3)
+    centres = np.concatenate([np.zeros((1, 3)), np.linalg.lstsq(m, rhs, rcond=None)[0].reshape(unknown, 3)])
+    poses = np.broadcast_to(np.eye(4), (num_frames, 4, 4)).copy()
+    poses[:, :3, :3], poses[:, :3, 3] = rotations, centres
+    return poses
+
+
+def _check_connected(design: np.ndarray, num_frames: int) -> None:
+    """A frame no edge ties to frame 0 leaves the least squares underdetermined: name it instead of guessing."""
+    if np.linalg.matrix_rank(design) < design.shape[1]:
+        raise UserError(f"pose graph: not every one of the {num_frames} frames is joined to frame 0 by a fit")

@@ -17,11 +17,11 @@ from contextlib import contextmanager
 import numpy as np
 import torch
 
-from d4rt.config import check_pose_pairs
+from d4rt.config import GRAPH_GAPS, check_pose_pairs
 from d4rt.errors import UserError
 from d4rt.geometry.transforms import similarity_times_pose
 from d4rt.geometry.umeyama import Similarity, umeyama
-from d4rt.reconstruction.cameras import relative_poses
+from d4rt.reconstruction.cameras import pose_graph, relative_poses
 from d4rt.reconstruction.query_patterns import grid_queries
 
 Windows = list[tuple[int, int]]  # [start, stop) frame ranges, ordered, consecutive ones overlapping
@@ -107,8 +107,10 @@ def align_pair(ask_previous: Callable[[np.ndarray], dict], ask_this: Callable[[n
 def window_camera_grid(ask: Callable[[np.ndarray], dict], first: int, frames: np.ndarray, uv: np.ndarray,
                        window_to_world: Similarity, pairs: str = "first") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The camera recipe's answers for the frames one window owns (paper Sec. 2.1): grid ``uv`` (P, 2) of
-    frame i seen in camera i (for intrinsics) and in another camera of the window (for the pose): its first
-    camera ``first`` (pairs="first"), or camera i - 1 with the fits chained from ``first`` (pairs="adjacent").
+    frame i seen in camera i (for intrinsics) and in other cameras of the window (for the pose): its first
+    camera ``first`` (pairs="first"), camera i - 1 with the fits chained from ``first`` (pairs="adjacent"), or
+    cameras i - g for g in ``GRAPH_GAPS`` inside the window, every pose solved at once (pairs="graph",
+    :func:`d4rt.reconstruction.cameras.pose_graph`).
 
     ask(queries with global frame indices) -> the window's answers; frames: (F,) owned frames, ascending.
     Returns points (F, P, 3) in camera i, their confidence (F, P), and cam_to_world (F, 4, 4) of each
@@ -119,22 +121,40 @@ def window_camera_grid(ask: Callable[[np.ndarray], dict], first: int, frames: np
     frames = np.asarray(frames, dtype=np.int64)
     if not len(frames):
         return np.zeros((0, n, 3)), np.zeros((0, n)), np.zeros((0, 4, 4))
-    # A chain needs every frame from the window's first one, owned or not.
-    asked = np.arange(first, frames.max() + 1) if pairs == "adjacent" else frames
-    other = np.maximum(asked - 1, first) if pairs == "adjacent" else np.full_like(asked, first)
-    # One call, each point's two queries side by side: they differ only in t_cam, so the model embeds their
+    # A chain or a graph needs every frame from the window's first one, owned or not.
+    asked = frames if pairs == "first" else np.arange(first, frames.max() + 1)
+    if pairs == "first":
+        others = [[first] for _ in asked]
+    elif pairs == "adjacent":
+        others = [[max(i - 1, first)] for i in asked]
+    else:  # only the gaps that fit in the window: the first frame has none (it is the window's world)
+        others = [[i - g for g in GRAPH_GAPS if i - g >= first] for i in asked]
+    # One call, each point's queries side by side: they differ only in t_cam, so the model embeds their
     # shared (u, v, t_src) once (EncodedScene.query, share_sources).
-    both = np.stack([grid_queries(uv, asked, asked, asked), grid_queries(uv, asked, asked, other)], 1).reshape(-1, 5)
-    answers = ask(both)
-    here = {k: v[0::2].reshape(len(asked), n, *v.shape[1:]) for k, v in answers.items()}
-    there = {k: v[1::2].reshape(len(asked), n, *v.shape[1:]) for k, v in answers.items()}
-    # Every frame's rigid fit at once (one batched SVD, no loop over frames).
-    weights = _finite_weights(here["confidence"] * there["confidence"])
-    poses = relative_poses(here["points"], there["points"], weights)
-    if pairs == "adjacent":
+    blocks = [np.stack([grid_queries(uv, [i], [i], [c]) for c in [i, *o]], 1).reshape(-1, 5)
+              for i, o in zip(asked, others)]
+    answers = ask(np.concatenate(blocks))
+    bounds = np.cumsum([0] + [len(b) for b in blocks])
+    per_frame = [{key: v[a:b].reshape(n, 1 + len(o), *v.shape[1:]) for key, v in answers.items()}
+                 for a, b, o in zip(bounds[:-1], bounds[1:], others)]
+    here = {key: np.stack([f[key][:, 0] for f in per_frame]) for key in answers}
+    edges = [(i, j) for i, o in enumerate(others) for j in o]  # frame i -> camera j, global indices for now
+    there = np.stack([f["points"][:, c] for f, o in zip(per_frame, others) for c in range(1, 1 + len(o))])
+    source = np.array([i for i, _ in edges], dtype=np.int64)
+    # Every fit at once (one batched SVD, no loop over frames).
+    weights = _finite_weights(here["confidence"][source] * np.stack(
+        [f["confidence"][:, c] for f, o in zip(per_frame, others) for c in range(1, 1 + len(o))]))
+    fits = relative_poses(here["points"][source], there, weights) if edges else np.zeros((0, 4, 4))
+    if pairs == "first":
+        poses = fits
+    elif pairs == "adjacent":
+        poses = fits
         poses[0] = np.eye(4)  # the window's first camera is its world
-        for k in range(1, len(poses)):
-            poses[k] = poses[k - 1] @ poses[k]  # camera i -> camera i - 1 -> ... -> the first camera
+        for i in range(1, len(poses)):
+            poses[i] = poses[i - 1] @ poses[i]  # camera i -> camera i - 1 -> ... -> the first camera
+    else:
+        pairs_local = np.array([(i, j - first) for i, j in edges], dtype=np.int64).reshape(-1, 2)
+        poses = pose_graph(len(asked), pairs_local, fits)
     pick = np.searchsorted(asked, frames)
     sim = window_to_world.matrix().double().numpy()
     c2w = np.stack([similarity_times_pose(sim, pose) for pose in poses[pick]])
