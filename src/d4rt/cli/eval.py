@@ -33,7 +33,8 @@ def register(subparsers) -> None:
                         "sequence is kept there until OUT is written)")
     p.add_argument("--pose-pairs", choices=POSE_PAIRS,
                    help="the model's camera recipe: each frame against the window's 'first' camera (the paper's) "
-                        "or against the previous frame, chained ('adjacent'); default: the model's own choice "
+                        "or against the previous frame, chained ('adjacent'), or against frames i-1, i-2, i-4, ... solved "
+                        "together ('graph'); default: the model's own choice "
                         "(its config's pose_pairs)")
     p.set_defaults(func=run)
 

@@ -78,7 +78,8 @@ def register(subparsers) -> None:
     outputs.add_argument("--pose-pairs", choices=POSE_PAIRS,
                          help="which camera each frame's pose is fitted against: the window's 'first' (the paper's "
                               "recipe) or the previous frame's, the fits chained ('adjacent': every query a "
-                              "one-frame gap, but errors add up along the chain); default: the model's own choice "
+                              "one-frame gap, but errors add up along the chain) or frames i-1, i-2, i-4, ... solved "
+                              "together by least squares ('graph'); default: the model's own choice "
                               "(its config's pose_pairs)")
     outputs.add_argument("--non-square-pixels", action="store_true",
                          help="estimate fx and fy separately (default: square pixels, fx = fy)")

@@ -41,7 +41,8 @@ def register(subparsers) -> None:
                    help="also decode depth maps of every frame at this size, or 'encoder' (default: cameras only)")
     p.add_argument("--pose-pairs", choices=POSE_PAIRS,
                    help="which camera each frame's pose is fitted against: the window's 'first' or the previous "
-                        "frame's, the fits chained ('adjacent'); default: the model's own (its config's pose_pairs)")
+                        "frame's, the fits chained ('adjacent'), or frames i-1, i-2, i-4, ... solved together ('graph'); "
+                        "default: the model's own (its config's pose_pairs)")
     p.add_argument("--checkpoint", metavar="DIR", default=None,
                    help="a directory written by D4RT.save_pretrained (default: the bundled model)")
     p.add_argument("--device", default="auto", help="torch device: auto (the default), cpu, cuda, cuda:1, ...")
