@@ -50,7 +50,7 @@ def stream_command(out, *extra) -> list[str]:
 
 # A shifted last window, windows that tile, one short window; the model's own camera pairs (the shipped model
 # chains adjacent frames) and the paper's (every frame against its window's first).
-@pytest.mark.parametrize("length, pose_pairs", [(15, None), (14, None), (5, None), (15, "first")])
+@pytest.mark.parametrize("length, pose_pairs", [(15, None), (14, None), (5, None), (15, "first"), (15, "graph")])
 def test_pushing_frames_one_at_a_time_equals_the_offline_recipe(model, clip, length, pose_pairs):
     rgb = clip.rgb[:length]
     cams, depth, windows = offline(model, rgb, pose_pairs=pose_pairs)
