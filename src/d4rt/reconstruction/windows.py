@@ -138,7 +138,7 @@ def window_camera_grid(ask: Callable[[np.ndarray], dict], first: int, frames: np
     per_frame = [{key: v[a:b].reshape(n, 1 + len(o), *v.shape[1:]) for key, v in answers.items()}
                  for a, b, o in zip(bounds[:-1], bounds[1:], others)]
     here = {key: np.stack([f[key][:, 0] for f in per_frame]) for key in answers}
-    edges = [(i, j) for i, o in enumerate(others) for j in o]  # frame i -> camera j, global indices for now
+    edges = [(i, j) for i, o in enumerate(others) for j in o]  # (index into asked, global frame of the other camera)
     there = np.stack([f["points"][:, c] for f, o in zip(per_frame, others) for c in range(1, 1 + len(o))])
     source = np.array([i for i, _ in edges], dtype=np.int64)
     # Every fit at once (one batched SVD, no loop over frames).
