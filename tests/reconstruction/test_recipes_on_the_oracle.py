@@ -378,6 +378,9 @@ def test_graph_pose_pairs_are_exact_and_ask_the_gaps_inside_each_window():
             asked.append(np.array(queries))
             return clip.oracle.query(queries)
 
+    # A one-frame video has no fit to make: its camera is the world.
+    single = render_clip(8, 1, 32, 48, environment="room")
+    assert np.array_equal(single.reconstruction(pose_pairs="graph").cameras().cam_to_world, np.eye(4)[None])
     # Per frame one query per grid point in its own camera and one per gap that fits, always an earlier camera.
     Reconstruction(Recording(), clip.rgb, pose_pairs="graph").cameras()
     queries = np.concatenate(asked)
@@ -423,6 +426,7 @@ def test_pose_graph_averages_inconsistent_fits_and_names_a_frame_left_out():
     assert np.allclose(np.linalg.det(rotations), 1.0)
     error = lambda poses: np.linalg.norm(poses[:, :3, 3] - truth[:, :3, 3], axis=1).mean()
     assert error(graph) < 0.6 * error(chained)
+    assert np.array_equal(pose_graph(1, np.zeros((0, 2)), np.zeros((0, 4, 4))), np.eye(4)[None])
     with pytest.raises(UserError, match="not every one of the 4 frames is joined to frame 0"):
         pose_graph(4, np.array([(1, 0), (3, 2)]), np.stack([np.eye(4)] * 2))
 

@@ -139,12 +139,15 @@ def window_camera_grid(ask: Callable[[np.ndarray], dict], first: int, frames: np
                  for a, b, o in zip(bounds[:-1], bounds[1:], others)]
     here = {key: np.stack([f[key][:, 0] for f in per_frame]) for key in answers}
     edges = [(i, j) for i, o in enumerate(others) for j in o]  # (index into asked, global frame of the other camera)
-    there = np.stack([f["points"][:, c] for f, o in zip(per_frame, others) for c in range(1, 1 + len(o))])
-    source = np.array([i for i, _ in edges], dtype=np.int64)
-    # Every fit at once (one batched SVD, no loop over frames).
-    weights = _finite_weights(here["confidence"][source] * np.stack(
-        [f["confidence"][:, c] for f, o in zip(per_frame, others) for c in range(1, 1 + len(o))]))
-    fits = relative_poses(here["points"][source], there, weights) if edges else np.zeros((0, 4, 4))
+    if edges:  # none only for a graph over the window's first frame alone, which is its world
+        there = {key: np.stack([f[key][:, c] for f, o in zip(per_frame, others) for c in range(1, 1 + len(o))])
+                 for key in ("points", "confidence")}
+        source = np.array([i for i, _ in edges], dtype=np.int64)
+        # Every fit at once (one batched SVD, no loop over frames).
+        weights = _finite_weights(here["confidence"][source] * there["confidence"])
+        fits = relative_poses(here["points"][source], there["points"], weights)
+    else:
+        fits = np.zeros((0, 4, 4))
     if pairs == "first":
         poses = fits
     elif pairs == "adjacent":
