@@ -48,6 +48,7 @@ from d4rt.geometry.camera import cell_centres_uv
 from d4rt.model import D4RT
 from d4rt.reconstruction import Reconstruction
 from d4rt.reconstruction.cameras import relative_poses
+from d4rt.reconstruction.sources import flipped_encode
 from d4rt.reconstruction.query_patterns import grid_queries
 from d4rt.config import POSE_PAIRS
 from d4rt.synthetic import render_clip
@@ -113,7 +114,7 @@ def probe(model: D4RT, clips: list, frames: int = FRAMES) -> dict:
     error_table, cosine_table, ates = [], [], []
     for name, clip in clips:
         with torch.no_grad():  # one encoding serves the probe's queries and both trajectories
-            scene = model.encode(clip.rgb)
+            scene = flipped_encode(model, model.config.flip_average)(clip.rgb)  # as the recipes encode
             ates.append(trajectory_ates(scene, clip))
             model_r, model_rot, model_change, model_t = camera_figures(*own_and_first_camera(scene.query, frames))
         true_r, true_rot, true_change, true_t = camera_figures(*own_and_first_camera(clip.oracle.query, frames))

@@ -114,6 +114,9 @@ class D4RTConfig:
             ``"adjacent"`` (against the previous frame, the fits chained) or ``"graph"`` (against frames
             i - 1, i - 2, i - 4, ..., every pose solved at once); see ``POSE_PAIRS``. Saved with the
             weights because it is chosen per model, on held-out clips; not part of the architecture.
+        flip_average: answer every query on the video and on its left-right mirror and average the two
+            (:mod:`d4rt.reconstruction.flip_average`; not in paper): two encoder passes and twice the queries
+            for answers with less of the model's own error. Saved with the weights for the same reason.
 
     Runtime
         layer_norm_eps: epsilon of every LayerNorm (1e-6, as VideoMAE v2).
@@ -154,6 +157,7 @@ class D4RTConfig:
     dense_depth_head: bool = False
     # inference default
     pose_pairs: str = "first"
+    flip_average: bool = False
     # runtime
     layer_norm_eps: float = 1e-6
     init_std: float = 0.02
@@ -205,7 +209,7 @@ class D4RTConfig:
             if not _is_number(value) or not value > 0:
                 raise UserError(f"config field {name} must be a positive number, got {value!r}")
         for name in ("gradient_checkpointing", "cache_scene_kv", "relative_pose_head", "uv_residual",
-                     "dense_depth_head"):
+                     "dense_depth_head", "flip_average"):
             if not isinstance(getattr(self, name), bool):
                 raise UserError(f"config field {name} must be true or false, got {getattr(self, name)!r}")
         check_pose_pairs(self.pose_pairs, "config pose_pairs")

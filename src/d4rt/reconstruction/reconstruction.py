@@ -77,12 +77,14 @@ class Reconstruction:
 
     @classmethod
     def from_model(cls, model, video, *, window: int | None = None, overlap: int | None = None,
-                   on_encode=None, **options) -> "Reconstruction":
+                   on_encode=None, flip_average: bool | None = None, **options) -> "Reconstruction":
         """The recipes over a D4RT model (anything with ``encode(video) -> answerer`` and ``config``):
         each window of ``video`` (T, H, W, 3) is encoded when first asked for (:class:`ModelSource`);
         ``on_encode`` is called after each encode (a progress bar's update, say); ``options`` as for
-        the constructor, with ``pose_pairs`` (or None) defaulting to the model's own (``config.pose_pairs``)."""
-        source = ModelSource(model, video, max_window=window, on_encode=on_encode)
+        the constructor, with ``pose_pairs`` (or None) defaulting to the model's own (``config.pose_pairs``);
+        ``flip_average`` (None: the model's ``config.flip_average``) averages every answer with the mirrored
+        video's (:mod:`d4rt.reconstruction.flip_average`)."""
+        source = ModelSource(model, video, max_window=window, on_encode=on_encode, flip_average=flip_average)
         if options.get("pose_pairs") is None:
             options["pose_pairs"] = model.config.pose_pairs
         return cls(source, video, window=window, overlap=overlap, **options)

@@ -14,6 +14,8 @@ from typing import Protocol
 
 import numpy as np
 
+from d4rt.reconstruction.flip_average import flip_averaged
+
 
 class Answerer(Protocol):
     """Anything that answers D4RT queries: an encoded scene, a ground-truth oracle."""
@@ -57,7 +59,10 @@ DEFAULT_CACHE_BYTES = 32 << 20
 
 
 def encoded_bytes(answerer) -> int:
-    """Bytes an encoded window holds in tensors (scene tokens, patch video, cached keys/values)."""
+    """Bytes an encoded window holds in tensors (scene tokens, patch video, cached keys/values; of both
+    encodings when it is flip-averaged)."""
+    if hasattr(answerer, "parts"):
+        return sum(encoded_bytes(part) for part in answerer.parts)
     tensors = [getattr(answerer, "tokens", None), getattr(answerer, "patch_video", None)]
     tensors += [t for pair in (getattr(answerer, "_kv", None) or []) for t in pair]
     return sum(t.numel() * t.element_size() for t in tensors if t is not None)
@@ -70,11 +75,16 @@ class ModelSource:
     works on consecutive pairs), so memory is bounded by the budget, not the video; inside
     :meth:`keeping` (dense tracking) a given number are kept whatever their size. ``encodes`` counts the
     windows encoded so far; ``on_encode``, if given, is called with no argument after each encode (a
-    progress bar's update, say)."""
+    progress bar's update, say). ``flip_average`` (default: the model's ``config.flip_average``) answers every
+    query on each window and on its mirror, averaged (:mod:`d4rt.reconstruction.flip_average`)."""
 
     def __init__(self, model, video, max_window: int | None = None, cache_windows: int = 2,
-                 on_encode: Callable[[], object] | None = None, cache_bytes: int = DEFAULT_CACHE_BYTES):
+                 on_encode: Callable[[], object] | None = None, cache_bytes: int = DEFAULT_CACHE_BYTES,
+                 flip_average: bool | None = None):
         self.model, self.video, self.on_encode = model, video, on_encode
+        if flip_average is None:
+            flip_average = model.config.flip_average
+        self.encode = flipped_encode(model, flip_average)
         self.num_frames = int(video.shape[0])
         self.max_window = max_window or model.config.max_frames
         size = model.config.image_size
@@ -90,7 +100,7 @@ class ModelSource:
             self._cache[key] = self._cache.pop(key)  # most recent last
             return self._cache[key]
         self._release(room_for=1)
-        self._cache[key] = self.model.encode(self.video[start:stop])
+        self._cache[key] = self.encode(self.video[start:stop])
         self.encodes += 1
         if self.on_encode is not None:
             self.on_encode()
@@ -119,6 +129,13 @@ class ModelSource:
         finally:
             self.cache_windows = usual
             self._release()
+
+
+def flipped_encode(model, flip_average: bool) -> Callable:
+    """``model.encode``, flip-averaged when ``flip_average`` is true."""
+    if not isinstance(flip_average, bool):
+        raise TypeError(f"flip_average must be true or false, got {flip_average!r}")
+    return flip_averaged(model.encode) if flip_average else model.encode
 
 
 class _FrameRange:

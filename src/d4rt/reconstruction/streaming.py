@@ -23,6 +23,7 @@ from d4rt.geometry.transforms import invert_rigid
 from d4rt.geometry.umeyama import Similarity
 from d4rt.reconstruction.cameras import intrinsics_from_points
 from d4rt.reconstruction.reconstruction import DEFAULT_GRID, ask_in_chunks
+from d4rt.reconstruction.sources import flipped_encode
 from d4rt.reconstruction.windows import (align_pair, identity_similarity, window_camera_grid, window_depth,
                                          window_overlap)
 
@@ -79,11 +80,14 @@ class StreamingReconstruction:
 
     @classmethod
     def from_model(cls, model, **options) -> "StreamingReconstruction":
-        """A stream over a D4RT model (``encode`` and ``config``): its longest window, and ``pose_pairs`` (or
-        None) defaulting to the model's own (``config.pose_pairs``), so that the cameras are its offline ones."""
+        """A stream over a D4RT model (``encode`` and ``config``): its longest window, and ``pose_pairs`` and
+        ``flip_average`` (or None) defaulting to the model's own (``config.pose_pairs``, ``config.flip_average``),
+        so that the answers are its offline ones."""
         if options.get("pose_pairs") is None:
             options["pose_pairs"] = model.config.pose_pairs
-        return cls(model.encode, model.config.max_frames, **options)
+        flip = options.pop("flip_average", None)
+        encode = flipped_encode(model, model.config.flip_average if flip is None else flip)
+        return cls(encode, model.config.max_frames, **options)
 
     def push(self, frame) -> list[WindowResult]:
         """Add the next frame (H, W, 3) uint8; returns the result of the window it completes, if any."""

@@ -133,12 +133,12 @@ class Trainer:
             state = pretrained.state_dict()
             had_residual, wants_residual = pretrained.config.uv_residual, self.model_config.uv_residual
             # The differences allowed: adding a part of ADDABLE_PARTS (the relative-pose head, the dense depth head)
-            # and turning the 2D head residual (never undoing any). The camera pairing is an inference default, not
-            # architecture: the new model keeps its own.
+            # and turning the 2D head residual (never undoing any). The camera pairing and flip averaging are inference
+            # defaults, not architecture: the new model keeps its own.
             wanted = {flag: getattr(self.model_config, flag) for flag in ADDABLE_PARTS}
             dropped = any(getattr(pretrained.config, flag) > wants for flag, wants in wanted.items())
             same = pretrained.config.replace(uv_residual=wants_residual, pose_pairs=self.model_config.pose_pairs,
-                                             **wanted)
+                                             flip_average=self.model_config.flip_average, **wanted)
             if same != self.model_config or dropped or had_residual > wants_residual:
                 raise UserError(f"model.init_from {spec.init_from} has a different model config than model.preset "
                                 f"{spec.preset!r} with its overrides")
