@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
+
 from d4rt.cli import COMMANDS
 
 
@@ -36,6 +38,9 @@ def register(subparsers) -> None:
                         "or against the previous frame, chained ('adjacent'), or against frames i-1, i-2, i-4, ... solved "
                         "together ('graph'); default: the model's own choice "
                         "(its config's pose_pairs)")
+    p.add_argument("--flip-average", action=argparse.BooleanOptionalAction, default=None,
+                   help="answer every query on the video and on its left-right mirror and average the two (two encoder "
+                        "passes, twice the queries); default: the model's own choice (its config's flip_average)")
     p.set_defaults(func=run)
 
 
@@ -60,12 +65,12 @@ def run(args) -> int:
         if args.checkpoint is None:
             raise UserError("nothing to evaluate: pass --checkpoint and/or --baseline")
         baselines = ["oracle"] + (["constant-depth"] if "depth" in benchmark.tasks else [])
-    predictors = ([d4rt_predictor(args.checkpoint, args.device, args.pose_pairs)] if args.checkpoint else [])
+    predictors = ([d4rt_predictor(args.checkpoint, args.device, args.pose_pairs, args.flip_average)] if args.checkpoint else [])
     predictors += [make_baseline(name) for name in dict.fromkeys(baselines)]
     out = args.out or Path(f"d4rt-eval-{benchmark.name.replace(':', '-').replace('/', '-')}.json")
     fingerprints = {p.name: p.name for p in predictors}
     if args.checkpoint:
-        fingerprints[predictors[0].name] = checkpoint_fingerprint(args.checkpoint, args.pose_pairs)
+        fingerprints[predictors[0].name] = checkpoint_fingerprint(args.checkpoint, args.pose_pairs, args.flip_average)
     store = PartialResults(partial_folder(out), {"benchmark": benchmark.name, "data": str(args.data)},
                            fingerprints, args.resume)
     results = run_benchmark(benchmark, predictors, args.data, args.limit, store=store)

@@ -7,6 +7,7 @@ A thin layer over the Python API: ``load_frames`` -> ``Reconstruction.from_model
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from contextlib import nullcontext
@@ -81,6 +82,9 @@ def register(subparsers) -> None:
                               "one-frame gap, but errors add up along the chain) or frames i-1, i-2, i-4, ... solved "
                               "together by least squares ('graph'); default: the model's own choice "
                               "(its config's pose_pairs)")
+    outputs.add_argument("--flip-average", action=argparse.BooleanOptionalAction, default=None,
+                         help="answer every query on the video and on its left-right mirror and average the two (two encoder "
+                        "passes, twice the queries); default: the model's own choice (its config's flip_average)")
     outputs.add_argument("--non-square-pixels", action="store_true",
                          help="estimate fx and fy separately (default: square pixels, fx = fy)")
     outputs.add_argument("--resolution", default="auto",
@@ -334,7 +338,8 @@ def reconstruct_clip(model, rgb, timestamps, out_dir, args, formats, save_option
 
     with progress_bar(desc="encode", unit="window", bar_format="{desc}: {n} window encodings [{elapsed}]") as bar:
         rec = Reconstruction.from_model(model, rgb, window=args.window, overlap=args.overlap, on_encode=bar.update,
-                                        pose_pairs=args.pose_pairs, progress=True)
+                                        pose_pairs=args.pose_pairs, flip_average=args.flip_average,
+                                        progress=True)
         print(describe_work(rec, formats, save_options["resolution"], args.point_stride, args.tracks, args.max_points,
                             args.points_from))
         return export_reconstruction(rec, out_dir, formats, overwrite=overwrite, timestamps=timestamps, **save_options)

@@ -9,6 +9,7 @@ received so far make the last window, so the files stay consistent; a second one
 
 from __future__ import annotations
 
+import argparse
 import json
 import shutil
 import sys
@@ -43,6 +44,9 @@ def register(subparsers) -> None:
                    help="which camera each frame's pose is fitted against: the window's 'first' or the previous "
                         "frame's, the fits chained ('adjacent'), or frames i-1, i-2, i-4, ... solved together ('graph'); "
                         "default: the model's own (its config's pose_pairs)")
+    p.add_argument("--flip-average", action=argparse.BooleanOptionalAction, default=None,
+                   help="answer every query on the video and on its left-right mirror and average the two (two encoder "
+                        "passes, twice the queries); default: the model's own choice (its config's flip_average)")
     p.add_argument("--checkpoint", metavar="DIR", default=None,
                    help="a directory written by D4RT.save_pretrained (default: the bundled model)")
     p.add_argument("--device", default="auto", help="torch device: auto (the default), cpu, cuda, cuda:1, ...")
@@ -133,7 +137,8 @@ def stream_to_folder(model, frames, out_dir, args, depth_option) -> dict:
                 elif depth_option is not None:
                     depth_size = depth_option
                 stream = StreamingReconstruction.from_model(model, window=args.window, overlap=args.overlap,
-                                                            depth_size=depth_size, pose_pairs=args.pose_pairs)
+                                                            depth_size=depth_size, pose_pairs=args.pose_pairs,
+                                                            flip_average=args.flip_average)
             times.append(stamp if stamp is not None else len(times) / fps)
             write(stream.push(frame))
             if stop.requested:

@@ -28,12 +28,17 @@ def partial_folder(out: Path) -> Path:
     return out.with_name(out.name + ".partial")
 
 
-def checkpoint_fingerprint(checkpoint: str | Path, pose_pairs: str | None = None) -> str:
-    """sha256 over a checkpoint's weight and config files (a directory) or its one file, and the camera recipe."""
+def checkpoint_fingerprint(checkpoint: str | Path, pose_pairs: str | None = None,
+                           flip_average: bool | None = None) -> str:
+    """sha256 over a checkpoint's weight and config files (a directory) or its one file, the camera recipe and the
+    flip averaging asked for (None: the config's, already in its bytes)."""
     path = Path(checkpoint)
     files = sorted(f for f in path.iterdir() if f.name in ("model.safetensors", "config.json")) if path.is_dir() \
         else [path]
-    digest = hashlib.sha256(f"pose_pairs={pose_pairs}".encode())
+    # Rows written before flip averaging existed hashed "pose_pairs=..." alone: a run resumed with no flip asked
+    # for still finds them.
+    asked = f"pose_pairs={pose_pairs}" + ("" if flip_average is None else f" flip_average={flip_average}")
+    digest = hashlib.sha256(asked.encode())
     for file in files:
         digest.update(file.name.encode())
         with open(file, "rb") as handle:

@@ -78,12 +78,15 @@ class ReconstructionPredictor:
         return out
 
 
-def d4rt_predictor(checkpoint: str, device: str = "cpu", pose_pairs: str | None = None) -> ReconstructionPredictor:
+def d4rt_predictor(checkpoint: str, device: str = "cpu", pose_pairs: str | None = None,
+                   flip_average: bool | None = None) -> ReconstructionPredictor:
     """D4RT from a ``save_pretrained`` directory, reconstructing each sequence's video by queries (poses
-    fitted as ``pose_pairs`` says, by default as the model's config says: see
-    :class:`~d4rt.reconstruction.Reconstruction`)."""
+    fitted as ``pose_pairs`` says and answers flip-averaged as ``flip_average`` says, by default as the model's
+    config says: see :class:`~d4rt.reconstruction.Reconstruction`)."""
     from d4rt.model import D4RT
 
     model = D4RT.from_pretrained(checkpoint, device=device)
     options = {} if pose_pairs is None else {"pose_pairs": pose_pairs}
+    if flip_average is not None:
+        options["flip_average"] = flip_average
     return ReconstructionPredictor("d4rt", lambda sequence: Reconstruction.from_model(model, sequence.rgb, **options))

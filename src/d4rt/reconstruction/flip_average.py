@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from d4rt.model.encoded_scene import OUTPUT_KEYS
-
+# Every answer of a query (``EncodedScene.query``; written out here: the recipes never import the model).
+ANSWER_KEYS = ("points", "uv", "visibility", "motion", "normals", "confidence")
 # Answers whose first coordinate is a camera-space x (negated by the mirror).
 CAMERA_VECTORS = ("points", "motion", "normals")
 
@@ -50,7 +50,7 @@ def mirror_answers(answers: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
 
 def average_answers(first: dict[str, torch.Tensor], second: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """The mean of two answers to the same queries; normals renormalised to unit length."""
-    mean = {key: (first[key] + second[key]) / 2 for key in OUTPUT_KEYS}
+    mean = {key: (first[key] + second[key]) / 2 for key in ANSWER_KEYS}
     norm = mean["normals"].norm(dim=-1, keepdim=True)
     # Two opposite normals average to nothing: keep the first answer's there rather than divide by zero.
     mean["normals"] = torch.where(norm > 1e-6, mean["normals"] / norm.clamp_min(1e-6), first["normals"])
