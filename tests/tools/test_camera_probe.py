@@ -18,11 +18,12 @@ spec.loader.exec_module(camera_probe)
 
 
 def _answering(answer_for_clip):
-    """A stand-in model: ``encode(rgb)`` answers as ``answer_for_clip(clip)`` does for the clip of ``rgb``."""
+    """A stand-in model: ``encode(rgb)`` answers as ``answer_for_clip(clip)`` does for the clip of ``rgb`` (no flip
+    averaging: the probe encodes as the model's config says)."""
     def encode(rgb):
         clip = next(clip for clip in _answering.clips if clip.rgb is rgb)
         return SimpleNamespace(query=answer_for_clip(clip), num_frames=clip.num_frames)
-    return SimpleNamespace(encode=encode)
+    return SimpleNamespace(encode=encode, config=SimpleNamespace(flip_average=False))
 
 
 @pytest.fixture(scope="module")
