@@ -33,9 +33,9 @@ class Mirrored:
 
 def test_the_mirror_of_an_exact_scene_is_the_pinhole_mirror(clip):
     # The recipes read the mirrored oracle as a camera with the same focal length and the principal point
-    # mirrored (cx -> W - 1 - cx: intrinsics put the top-left pixel's centre at x = 0, README), the same depth maps mirrored and the camera path mirrored
-    # (x -> -x in every camera, so R -> S R S and t -> S t with S = diag(-1, 1, 1)): u -> 1 - u and x -> -x are
-    # one mirror, as pinhole geometry says.
+    # mirrored (cx -> W - 1 - cx: intrinsics put the top-left pixel's centre at x = 0, README), the same depth
+    # maps mirrored and the camera path mirrored (x -> -x in every camera, so R -> S R S and t -> S t with
+    # S = diag(-1, 1, 1)): u -> 1 - u and x -> -x are one mirror, as pinhole geometry says.
     plain = Reconstruction.from_clip(clip)
     mirrored = Reconstruction(Mirrored(clip.oracle), mirror_video(clip.rgb))
     k, k_mirrored = plain.cameras().intrinsics, mirrored.cameras().intrinsics

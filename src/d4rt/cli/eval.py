@@ -65,7 +65,8 @@ def run(args) -> int:
         if args.checkpoint is None:
             raise UserError("nothing to evaluate: pass --checkpoint and/or --baseline")
         baselines = ["oracle"] + (["constant-depth"] if "depth" in benchmark.tasks else [])
-    predictors = ([d4rt_predictor(args.checkpoint, args.device, args.pose_pairs, args.flip_average)] if args.checkpoint else [])
+    predictors = ([d4rt_predictor(args.checkpoint, args.device, args.pose_pairs, args.flip_average)]
+                  if args.checkpoint else [])
     predictors += [make_baseline(name) for name in dict.fromkeys(baselines)]
     out = args.out or Path(f"d4rt-eval-{benchmark.name.replace(':', '-').replace('/', '-')}.json")
     fingerprints = {p.name: p.name for p in predictors}

@@ -83,8 +83,9 @@ def register(subparsers) -> None:
                               "together by least squares ('graph'); default: the model's own choice "
                               "(its config's pose_pairs)")
     outputs.add_argument("--flip-average", action=argparse.BooleanOptionalAction, default=None,
-                         help="answer every query on the video and on its left-right mirror and average the two (two encoder "
-                        "passes, twice the queries); default: the model's own choice (its config's flip_average)")
+                         help="answer every query on the video and on its left-right mirror and average the "
+                              "two (two encoder passes, twice the queries); default: the model's own choice (its "
+                              "config's flip_average)")
     outputs.add_argument("--non-square-pixels", action="store_true",
                          help="estimate fx and fy separately (default: square pixels, fx = fy)")
     outputs.add_argument("--resolution", default="auto",
