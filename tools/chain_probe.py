@@ -1,0 +1,121 @@
+"""Where a chained camera trajectory goes wrong: its rotations or its translations? (issue 14, stage 76)
+
+    python tools/chain_probe.py CHECKPOINT [CHECKPOINT ...] --out probe.json
+
+Why: every model trained on from the shipped weights recovers more of the camera's rotation than they do (stages 38,
+69-74) while the trajectory chained from one-frame fits (``pose_pairs="adjacent"``, the shipped recipe) gets worse,
+and most of the loss comes from a few clips whose camera turns by 30-60 degrees. For the 48 held-out clips of
+``tools/camera_probe.py --every 1 --frames 24 --time-stride 1`` (seeds 8,000,000 + index), each model's chained
+trajectory is cut into its frame-to-frame steps (camera-to-world, ``P_i = P_(i-1) @ step_i``) and rebuilt three
+ways, each scored like ``d4rt eval`` (ATE after Sim(3) alignment):
+
+- ``model``: the model's steps (the recipe's trajectory itself);
+- ``true_rotations``: each step's rotation replaced by the true one, the model's translation kept;
+- ``true_translations``: each step's translation replaced by the true one (the Sim(3) alignment absorbs the
+  model's scale), the model's rotation kept.
+
+So a trajectory that ``true_rotations`` repairs lost itself in its rotations. Per step, also the angle between the
+model's and the true rotation (``step_rotation_error``, degrees) and the model's step angle over the true one
+(``step_rotation_ratio``, over steps that turn by more than 0.5 degrees). Reported per model: the mean and median over
+clips of each ATE, the medians of the step figures, and the clips with the largest ``model`` ATE. Writes JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from d4rt.evaluation.metrics.pose import pose_metrics, rotation_angle
+from d4rt.evaluation.synthetic_benchmark import clip_specs
+from d4rt.geometry.transforms import invert_rigid
+from d4rt.model import D4RT
+from d4rt.reconstruction import Reconstruction
+from d4rt.reconstruction.sources import flipped_encode
+from d4rt.synthetic import render_clip
+
+HELD_OUT_SEED = 8_000_000  # tools/camera_probe.py's clips
+FRAMES = 24
+MIN_STEP_DEGREES = 0.5
+WAYS = ("model", "true_rotations", "true_translations")
+
+
+def steps(cam_to_world: np.ndarray) -> np.ndarray:
+    """(T, 4, 4) camera-to-world -> (T - 1, 4, 4) frame-to-frame steps, ``P_i = P_(i-1) @ step_i``."""
+    return invert_rigid(cam_to_world[:-1]) @ cam_to_world[1:]
+
+
+def chain(step: np.ndarray) -> np.ndarray:
+    """Steps (T - 1, 4, 4) -> the trajectory (T, 4, 4) from the identity."""
+    poses = [np.eye(4)]
+    for s in step:
+        poses.append(poses[-1] @ s)
+    return np.stack(poses)
+
+
+def rebuilt(model: np.ndarray, truth: np.ndarray) -> dict[str, np.ndarray]:
+    """The model's trajectory and its two hybrids with the truth (module docstring), each (T, 4, 4)."""
+    model_steps, true_steps = steps(model), steps(truth)
+    rotations, translations = model_steps.copy(), model_steps.copy()
+    rotations[:, :3, :3] = true_steps[:, :3, :3]
+    translations[:, :3, 3] = true_steps[:, :3, 3]
+    return {"model": chain(model_steps), "true_rotations": chain(rotations), "true_translations": chain(translations)}
+
+
+def probe_clip(model: D4RT, clip) -> dict:
+    with torch.no_grad():
+        scene = flipped_encode(model, model.config.flip_average)(clip.rgb)
+        predicted = Reconstruction(scene, clip.rgb, pose_pairs="adjacent", progress=False).cameras().cam_to_world
+    truth = clip.cam_to_world
+    ates = {way: pose_metrics(poses, truth)["ate"] for way, poses in rebuilt(predicted, truth).items()}
+    model_steps, true_steps = steps(predicted)[:, :3, :3], steps(truth)[:, :3, :3]
+    error = np.degrees(rotation_angle(np.swapaxes(model_steps, 1, 2) @ true_steps))
+    true_angle, model_angle = np.degrees(rotation_angle(true_steps)), np.degrees(rotation_angle(model_steps))
+    turning = true_angle > MIN_STEP_DEGREES
+    return {"ate": ates, "step_rotation_error": error.tolist(),
+            "step_rotation_ratio": (model_angle[turning] / true_angle[turning]).tolist(),
+            "true_rotation": float(np.degrees(rotation_angle(truth[0, :3, :3].T @ truth[-1, :3, :3])))}
+
+
+def summarise(rows: dict[str, dict], worst: int) -> dict:
+    ates = {way: np.array([row["ate"][way] for row in rows.values()]) for way in WAYS}
+    errors = np.concatenate([row["step_rotation_error"] for row in rows.values()])
+    ratios = np.concatenate([row["step_rotation_ratio"] for row in rows.values()])
+    order = sorted(rows, key=lambda name: -rows[name]["ate"]["model"])[:worst]
+    return {"ate": {way: {"mean": round(float(a.mean()), 4), "median": round(float(np.median(a)), 4)}
+                    for way, a in ates.items()},
+            "median_step_rotation_error": round(float(np.median(errors)), 3),
+            "median_step_rotation_ratio": round(float(np.median(ratios)), 3) if len(ratios) else None,
+            "worst_clips": [{"clip": name, "true_rotation": round(rows[name]["true_rotation"], 1),
+                             **{way: round(rows[name]["ate"][way], 4) for way in WAYS}} for name in order]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoints", nargs="+")
+    parser.add_argument("--out", required=True)
+    parser.add_argument("--worst", type=int, default=6, help="clips listed by their model ATE (default 6)")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    specs = [replace(s, seed=HELD_OUT_SEED + s.index) for s in clip_specs()]
+    clips = {f"held_out_{s.index:02d}": render_clip(s.seed, FRAMES, s.height, s.width,
+                                                     **(vars(s.options) | {"time_stride": 1})) for s in specs}
+    report = {"held_out_seed": HELD_OUT_SEED, "frames": FRAMES, "models": {}}
+    for checkpoint in args.checkpoints:
+        model = D4RT.from_pretrained(checkpoint)
+        rows = {name: probe_clip(model, clip) for name, clip in clips.items()}
+        report["models"][checkpoint] = summarise(rows, args.worst) | {"clips": rows}
+    Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
+    for name, row in report["models"].items():
+        print(name, "ATE mean / median:", "; ".join(f"{way} {v['mean']} / {v['median']}" for way, v in row["ate"].items()),
+              f"| step rotation error {row['median_step_rotation_error']} deg, ratio {row['median_step_rotation_ratio']}")
+        for clip in row["worst_clips"]:
+            print("  ", clip)
+
+
+if __name__ == "__main__":
+    main()
