@@ -1,5 +1,5 @@
-"""tools/chain_probe.py: the exact oracle's chained trajectory is exact every way, and a chain whose steps turn
-wrongly is repaired by the true rotations alone (the decomposition the probe reports)."""
+"""tools/chain_probe.py: the exact oracle's chained trajectory is exact every way (its similarity fits at scale 1),
+and a chain whose steps turn wrongly is repaired by the true rotations alone (the decomposition the probe reports)."""
 
 from __future__ import annotations
 
@@ -23,7 +23,8 @@ def test_the_oracle_chains_the_true_trajectory_every_way():
     clip = render_clip(3, 8, 36, 48, num_objects=2, camera_motion="orbit")
     oracle_model = SimpleNamespace(encode=lambda rgb: clip.oracle, config=SimpleNamespace(flip_average=False))
     row = chain_probe.probe_clip(oracle_model, clip)
-    assert max(row["ate"].values()) < 1e-6
+    assert max(row["ate"].values()) < 1e-6  # the similarity chain too
+    np.testing.assert_allclose(row["step_scale"], 1, atol=1e-6)
     assert max(row["step_rotation_error"]) < 1e-4
     np.testing.assert_allclose(row["step_rotation_ratio"], 1, atol=1e-4)
 
