@@ -20,8 +20,10 @@ ways, each scored like ``d4rt eval`` (ATE after Sim(3) alignment):
 
 So a trajectory that ``true_rotations`` repairs lost itself in its rotations. Per step, also the angle between the
 model's and the true rotation (``step_rotation_error``, degrees) and the model's step angle over the true one
-(``step_rotation_ratio``, over steps that turn by more than 0.5 degrees). Reported per model: the mean and median over
-clips of each ATE, the medians of the step figures, and the clips with the largest ``model`` ATE. Writes JSON.
+(``step_rotation_ratio``, over steps that turn by more than 0.5 degrees); each step's travel against the truth's
+(``step_translation_cosine``, and ``step_length_ratio``: the length ratio over the clip's median one). Reported per
+model: the mean and median over clips of each ATE, the medians (and 5th-95th percentiles) of the step figures, and
+the clips with the largest ``model`` ATE. Writes JSON.
 """
 
 from __future__ import annotations
@@ -108,7 +110,16 @@ def probe_clip(model: D4RT, clip) -> dict:
     error = np.degrees(rotation_angle(np.swapaxes(model_steps, 1, 2) @ true_steps))
     true_angle, model_angle = np.degrees(rotation_angle(true_steps)), np.degrees(rotation_angle(model_steps))
     turning = true_angle > MIN_STEP_DEGREES
-    return {"ate": ates, "step_scale": scales.tolist(), "step_rotation_error": error.tolist(),
+    # Each step's travel against the truth's: the cosine of the angle between the two, and the length ratio over
+    # the clip's median ratio (the model's scale is its own), over steps that travel at all.
+    model_t, true_t = steps(predicted)[:, :3, 3], steps(truth)[:, :3, 3]
+    lengths = np.linalg.norm(model_t, axis=1), np.linalg.norm(true_t, axis=1)
+    moving = lengths[1] > 1e-6 * max(lengths[1].max(), 1e-12)
+    ratio = lengths[0][moving] / lengths[1][moving]
+    cosine = (model_t[moving] * true_t[moving]).sum(1) / np.maximum(lengths[0][moving] * lengths[1][moving], 1e-12)
+    return {"ate": ates, "step_scale": scales.tolist(), "step_translation_cosine": cosine.tolist(),
+            "step_length_ratio": (ratio / np.median(ratio)).tolist() if len(ratio) else [],
+            "step_rotation_error": error.tolist(),
             "step_rotation_ratio": (model_angle[turning] / true_angle[turning]).tolist(),
             "true_rotation": float(np.degrees(rotation_angle(truth[0, :3, :3].T @ truth[-1, :3, :3])))}
 
@@ -118,12 +129,16 @@ def summarise(rows: dict[str, dict], worst: int) -> dict:
     errors = np.concatenate([row["step_rotation_error"] for row in rows.values()])
     ratios = np.concatenate([row["step_rotation_ratio"] for row in rows.values()])
     scales = np.concatenate([row["step_scale"] for row in rows.values()])
+    cosines = np.concatenate([row["step_translation_cosine"] for row in rows.values()])
+    lengths = np.concatenate([row["step_length_ratio"] for row in rows.values()])
     order = sorted(rows, key=lambda name: -rows[name]["ate"]["model"])[:worst]
     return {"ate": {way: {"mean": round(float(a.mean()), 4), "median": round(float(np.median(a)), 4)}
                     for way, a in ates.items()},
             "median_step_rotation_error": round(float(np.median(errors)), 3),
             "median_step_rotation_ratio": round(float(np.median(ratios)), 3) if len(ratios) else None,
             "step_scale": [round(float(q), 4) for q in np.percentile(scales, [5, 50, 95])],
+            "step_translation_cosine": [round(float(q), 3) for q in np.percentile(cosines, [5, 50, 95])],
+            "step_length_ratio": [round(float(q), 3) for q in np.percentile(lengths, [5, 50, 95])],
             "worst_clips": [{"clip": name, "true_rotation": round(rows[name]["true_rotation"], 1),
                              **{way: round(rows[name]["ate"][way], 4) for way in WAYS}} for name in order]}
 
@@ -147,7 +162,8 @@ def main() -> None:
     for name, row in report["models"].items():
         print(name, "ATE mean / median:", "; ".join(f"{way} {v['mean']} / {v['median']}" for way, v in row["ate"].items()),
               f"| step rotation error {row['median_step_rotation_error']} deg, ratio {row['median_step_rotation_ratio']}, "
-              f"scale 5/50/95% {row['step_scale']}")
+              f"scale 5/50/95% {row['step_scale']}; step travel cosine {row['step_translation_cosine']}, "
+              f"length over the clip's median {row['step_length_ratio']}")
         for clip in row["worst_clips"]:
             print("  ", clip)
 

@@ -25,6 +25,8 @@ def test_the_oracle_chains_the_true_trajectory_every_way():
     row = chain_probe.probe_clip(oracle_model, clip)
     assert max(row["ate"].values()) < 1e-6  # the similarity chain too
     np.testing.assert_allclose(row["step_scale"], 1, atol=1e-6)
+    np.testing.assert_allclose(row["step_translation_cosine"], 1, atol=1e-6)
+    np.testing.assert_allclose(row["step_length_ratio"], 1, atol=1e-6)
     assert max(row["step_rotation_error"]) < 1e-4
     np.testing.assert_allclose(row["step_rotation_ratio"], 1, atol=1e-4)
 
