@@ -114,7 +114,7 @@ def probe(model: D4RT, clips: list, frames: int = FRAMES) -> dict:
     error_table, cosine_table, ates = [], [], []
     for name, clip in clips:
         with torch.no_grad():  # one encoding serves the probe's queries and both trajectories
-            scene = flipped_encode(model, model.config.flip_average)(clip.rgb)  # as the recipes encode
+            scene = flipped_encode(model)(clip.rgb)  # as the recipes encode
             ates.append(trajectory_ates(scene, clip))
             model_r, model_rot, model_change, model_t = camera_figures(*own_and_first_camera(scene.query, frames))
         true_r, true_rot, true_change, true_t = camera_figures(*own_and_first_camera(clip.oracle.query, frames))

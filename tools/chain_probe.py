@@ -6,7 +6,7 @@ Why: every model trained on from the shipped weights recovers more of the camera
 69-74) while the trajectory chained from one-frame fits (``pose_pairs="adjacent"``, the shipped recipe) gets worse,
 and most of the loss comes from a few clips whose camera turns by 30-60 degrees. For the 48 held-out clips of
 ``tools/camera_probe.py --every 1 --frames 24 --time-stride 1`` (seeds 8,000,000 + index), each model's chained
-trajectory is cut into its frame-to-frame steps (camera-to-world, ``P_i = P_(i-1) @ step_i``) and rebuilt three
+trajectory is cut into its frame-to-frame steps (camera-to-world, ``P_i = P_(i-1) @ step_i``) and rebuilt four
 ways, each scored like ``d4rt eval`` (ATE after Sim(3) alignment):
 
 - ``model``: the model's steps (the recipe's trajectory itself);
@@ -78,7 +78,8 @@ def rebuilt(model: np.ndarray, truth: np.ndarray) -> dict[str, np.ndarray]:
 
 def similarity_chain(scene, num_frames: int) -> tuple[np.ndarray, np.ndarray]:
     """The adjacent recipe's answers fitted with a scale and chained: camera-to-world (T, 4, 4) in camera 0's
-    units (rotations without the scale) and the T - 1 fitted scales."""
+    units (rotations without the scale) and the T - 1 fitted scales. It asks the recipe's grid again (the recipe
+    keeps only its rigid fits): a diagnosis's cost, twice the camera queries."""
     uv = cell_centres_uv(DEFAULT_GRID)
     frames = np.arange(1, num_frames)
     queries = np.concatenate([np.stack([grid_queries(uv, [i], [i], [c]) for c in (i, i - 1)], 1).reshape(-1, 5)
@@ -100,19 +101,20 @@ def similarity_chain(scene, num_frames: int) -> tuple[np.ndarray, np.ndarray]:
 
 def probe_clip(model: D4RT, clip) -> dict:
     with torch.no_grad():
-        scene = flipped_encode(model, model.config.flip_average)(clip.rgb)
+        scene = flipped_encode(model)(clip.rgb)
         predicted = Reconstruction(scene, clip.rgb, pose_pairs="adjacent", progress=False).cameras().cam_to_world
         similar, scales = similarity_chain(scene, clip.num_frames)
     truth = clip.cam_to_world
     ates = {way: pose_metrics(poses, truth)["ate"] for way, poses in rebuilt(predicted, truth).items()}
     ates["similarity_chain"] = pose_metrics(similar, truth)["ate"]
-    model_steps, true_steps = steps(predicted)[:, :3, :3], steps(truth)[:, :3, :3]
-    error = np.degrees(rotation_angle(np.swapaxes(model_steps, 1, 2) @ true_steps))
-    true_angle, model_angle = np.degrees(rotation_angle(true_steps)), np.degrees(rotation_angle(model_steps))
+    model_steps, true_steps = steps(predicted), steps(truth)
+    model_r, true_r = model_steps[:, :3, :3], true_steps[:, :3, :3]
+    error = np.degrees(rotation_angle(np.swapaxes(model_r, 1, 2) @ true_r))
+    true_angle, model_angle = np.degrees(rotation_angle(true_r)), np.degrees(rotation_angle(model_r))
     turning = true_angle > MIN_STEP_DEGREES
     # Each step's travel against the truth's: the cosine of the angle between the two, and the length ratio over
     # the clip's median ratio (the model's scale is its own), over steps that travel at all.
-    model_t, true_t = steps(predicted)[:, :3, 3], steps(truth)[:, :3, 3]
+    model_t, true_t = model_steps[:, :3, 3], true_steps[:, :3, 3]
     lengths = np.linalg.norm(model_t, axis=1), np.linalg.norm(true_t, axis=1)
     moving = lengths[1] > 1e-6 * max(lengths[1].max(), 1e-12)
     ratio = lengths[0][moving] / lengths[1][moving]

@@ -82,8 +82,6 @@ class ModelSource:
                  on_encode: Callable[[], object] | None = None, cache_bytes: int = DEFAULT_CACHE_BYTES,
                  flip_average: bool | None = None):
         self.model, self.video, self.on_encode = model, video, on_encode
-        if flip_average is None:
-            flip_average = model.config.flip_average
         self.encode = flipped_encode(model, flip_average)
         self.num_frames = int(video.shape[0])
         self.max_window = max_window or model.config.max_frames
@@ -131,8 +129,11 @@ class ModelSource:
             self._release()
 
 
-def flipped_encode(model, flip_average: bool) -> Callable:
-    """``model.encode``, flip-averaged when ``flip_average`` is true."""
+def flipped_encode(model, flip_average: bool | None = None) -> Callable:
+    """``model.encode``, flip-averaged when ``flip_average`` is true (None: as the model's ``config.flip_average``
+    says), so that every path that encodes answers alike."""
+    if flip_average is None:
+        flip_average = model.config.flip_average
     if not isinstance(flip_average, bool):
         raise TypeError(f"flip_average must be true or false, got {flip_average!r}")
     return flip_averaged(model.encode) if flip_average else model.encode

@@ -85,9 +85,7 @@ class StreamingReconstruction:
         so that the answers are its offline ones."""
         if options.get("pose_pairs") is None:
             options["pose_pairs"] = model.config.pose_pairs
-        flip = options.pop("flip_average", None)
-        encode = flipped_encode(model, model.config.flip_average if flip is None else flip)
-        return cls(encode, model.config.max_frames, **options)
+        return cls(flipped_encode(model, options.pop("flip_average", None)), model.config.max_frames, **options)
 
     def push(self, frame) -> list[WindowResult]:
         """Add the next frame (H, W, 3) uint8; returns the result of the window it completes, if any."""
