@@ -52,6 +52,8 @@ def check_pose_pairs(pairs: str, name: str = "pose_pairs") -> str:
 
 PATCH_SOURCES = ("encoder", "original")
 CONFIDENCE_ACTIVATIONS = ("softplus", "one_plus_exp")
+# How the points head's 3 numbers become a point (ModelConfig.points_activation).
+POINTS_ACTIVATIONS = ("linear", "exp")
 
 
 @dataclass(frozen=True)
@@ -90,6 +92,13 @@ class D4RTConfig:
         decoder_dim, decoder_depth, decoder_heads, decoder_mlp_dim: as for the encoder.
         confidence_activation: ``"softplus"`` (c = softplus(x), any positive value) or
             ``"one_plus_exp"`` (c = 1 + exp(x), DUSt3R's choice, c >= 1) (not in paper).
+        points_activation: ``"linear"`` (the head's 3 numbers r are the point, the paper leaves it open) or
+            ``"exp"`` (the point is ``r / |r| * (exp(|r|) - 1)``: the direction from r, the distance from its
+            exponential, DUSt3R's ``exp`` depth mode; not in paper). Why: the loss compares log-compressed points,
+            and a sky 50 m away beside a box at 1 m asks a linear head for outputs 50 times apart, which its
+            LayerNorm'd features and weight decay resist; every tiny model trained with it put the far range 6-17
+            times the near one whatever the truth (docs/training.md, stages 21, 64, 67). Under ``"exp"`` a ratio
+            of depths is a difference of the head's outputs.
         relative_pose_head: the points head answers in camera t_src and a per-query relative-pose head
             (rotation in the 6D form, translation) moves them, and motion and normals, into camera t_cam;
             identity where t_cam = t_src (not in paper, which regresses the point in camera t_cam
@@ -152,6 +161,7 @@ class D4RTConfig:
     decoder_heads: int = 3
     decoder_mlp_dim: int = 768
     confidence_activation: str = "softplus"
+    points_activation: str = "linear"
     relative_pose_head: bool = False
     uv_residual: bool = False
     dense_depth_head: bool = False
@@ -201,6 +211,9 @@ class D4RTConfig:
         if self.confidence_activation not in CONFIDENCE_ACTIVATIONS:
             raise UserError(
                 f"config confidence_activation must be one of {CONFIDENCE_ACTIVATIONS}, got {self.confidence_activation!r}")
+        if self.points_activation not in POINTS_ACTIVATIONS:
+            raise UserError(
+                f"config points_activation must be one of {POINTS_ACTIVATIONS}, got {self.points_activation!r}")
         if self.fourier_max_frequency is not None and not (
                 _is_number(self.fourier_max_frequency) and self.fourier_max_frequency >= 1.0):
             raise UserError(f"config fourier_max_frequency must be >= 1 cycle per image, got {self.fourier_max_frequency!r}")

@@ -51,6 +51,20 @@ def rotation_from_6d(d6: torch.Tensor) -> torch.Tensor:
     return torch.stack([b1, b2, torch.linalg.cross(b1, b2)], dim=-1)
 
 
+def exp_distance(raw: torch.Tensor) -> torch.Tensor:
+    """``raw / |raw| * (exp(|raw|) - 1)`` over the last axis (..., 3): the direction kept, the length exponentiated.
+
+    Written as ``raw * expm1(n) / n`` with ``expm1(n) / n -> 1`` at ``n = 0``, so that a zero vector maps to zero
+    with a finite gradient. The length is clamped at 80 before the exponential (float32 overflows near 88):
+    an overflow guard, not a range limit (e^80 is 10^34 times the unit).
+    """
+    length = torch.linalg.vector_norm(raw, dim=-1, keepdim=True)
+    tiny = length < 1e-6
+    safe = torch.where(tiny, torch.ones_like(length), length)
+    gain = torch.where(tiny, 1.0 + 0.5 * length, torch.expm1(safe.clamp(max=80.0)) / safe)
+    return raw * gain
+
+
 # The 6D form of the identity rotation: the relative-pose head's output is added to it.
 _IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
 
@@ -59,7 +73,7 @@ class PredictionHeads(nn.Module):
     """Final LayerNorm and one linear head per output, then each output's activation.
 
     ``forward(x: (B, N, dim), same_camera: (B, N) bool | None) -> dict`` of (B, N, ...) float32 tensors:
-        points (3): raw. uv (2): raw (a point may leave the image). visibility_logit (1 -> squeezed) and
+        points (3): raw, or ``exp_distance`` of it (config ``points_activation``). uv (2): raw (a point may leave the image). visibility_logit (1 -> squeezed) and
         visibility = sigmoid(logit). motion (3): raw. normals (3): L2-normalised.
         confidence (1 -> squeezed): positive, softplus or 1 + exp (config ``confidence_activation``).
 
@@ -74,8 +88,10 @@ class PredictionHeads(nn.Module):
     bf16's 8-bit mantissa would round a depth of 10 to steps of 1/16 and quantise every loss input.
     """
 
-    def __init__(self, dim: int, eps: float, confidence_activation: str, relative_pose_head: bool = False):
+    def __init__(self, dim: int, eps: float, confidence_activation: str, relative_pose_head: bool = False,
+                 points_activation: str = "linear"):
         super().__init__()
+        self.points_activation = points_activation
         self.norm = nn.LayerNorm(dim, eps=eps)
         self.heads = nn.ModuleDict({name: nn.Linear(dim, size) for name, size in HEAD_CHANNELS.items()})
         self.confidence_activation = confidence_activation
@@ -86,6 +102,8 @@ class PredictionHeads(nn.Module):
             x = F.layer_norm(x.float(), self.norm.normalized_shape, self.norm.weight.float(),
                              self.norm.bias.float(), self.norm.eps)
             raw = {name: F.linear(x, head.weight.float(), head.bias.float()) for name, head in self.heads.items()}
+            if self.points_activation == "exp":  # in camera t_src, before any relative pose moves the point
+                raw["points"] = exp_distance(raw["points"])
             if self.relative_pose is not None:
                 if same_camera is None:
                     raise ValueError("relative_pose_head needs same_camera (t_cam == t_src per query)")
@@ -134,7 +152,7 @@ class QueryDecoder(nn.Module):
             for _ in range(config.decoder_depth)
         )
         self.heads = PredictionHeads(config.decoder_dim, config.layer_norm_eps, config.confidence_activation,
-                                     config.relative_pose_head)
+                                     config.relative_pose_head, config.points_activation)
 
     def project_scene(self, tokens: torch.Tensor) -> SceneKV:
         """Keys and values of every block: a list of ``decoder_depth`` pairs ``(B, heads, M, d)``."""
