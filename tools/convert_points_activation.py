@@ -20,17 +20,19 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from pathlib import Path
 
 import torch
 import torch.nn.functional as F
-from tqdm import tqdm
 
-from d4rt.data import build_dataset
-from d4rt.errors import UserError
-from d4rt.model import D4RT
-from d4rt.model.decoder import exp_distance
-from d4rt.training.config import TrainConfig
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from loss_probe import held_out_samples  # noqa: E402
+
+from d4rt.errors import UserError  # noqa: E402
+from d4rt.model import D4RT  # noqa: E402
+from d4rt.model.decoder import exp_distance  # noqa: E402
+from d4rt.training.config import TrainConfig  # noqa: E402
 
 FIT_SEED = 13_000_000
 
@@ -113,11 +115,7 @@ def main(argv: list[str] | None = None) -> None:
     try:  # a missing or mismatched checkpoint or config: one line, no traceback
         config = TrainConfig.load(args.config)
         model = D4RT.from_pretrained(args.checkpoint)
-        dataset_config = config.data.dataset
-        sampler = dataclasses.replace(dataset_config.sampler, num_queries=args.queries)
-        dataset = build_dataset(dataclasses.replace(dataset_config, seed=FIT_SEED, sampler=sampler, render_device="cpu"))
-        samples = [dataset[i] for i in tqdm(range(args.samples), desc="rendering fit samples", leave=False)]
-        converted, fit = convert(model, samples)
+        converted, fit = convert(model, held_out_samples(config, args.samples, args.queries, seed=FIT_SEED))
     except UserError as error:
         parser.error(str(error))
     converted.save_pretrained(args.out)

@@ -48,12 +48,13 @@ HIGHER_IS_BETTER = ("2d_slope",)
 SHOWN = ("3d", "2d", "2d_moved", "2d_still", "2d_slope", "pose_rotation", "pose_translation", "confidence_mean")
 
 
-def held_out_samples(config: TrainConfig, samples: int, queries: int) -> list[dict[str, torch.Tensor]]:
-    """The first ``samples`` samples of the config's dataset with the held-out seed and ``queries`` queries each."""
+def held_out_samples(config: TrainConfig, samples: int, queries: int, seed: int = HELD_OUT_SEED
+                     ) -> list[dict[str, torch.Tensor]]:
+    """The first ``samples`` samples of the config's dataset with ``seed`` (default the held-out seed) and
+    ``queries`` queries each."""
     dataset_config = config.data.dataset
     sampler = dataclasses.replace(dataset_config.sampler, num_queries=queries)
-    dataset = build_dataset(dataclasses.replace(dataset_config, seed=HELD_OUT_SEED, sampler=sampler,
-                                                render_device="cpu"))
+    dataset = build_dataset(dataclasses.replace(dataset_config, seed=seed, sampler=sampler, render_device="cpu"))
     return [dataset[i] for i in tqdm(range(samples), desc="rendering held-out samples", leave=False)]
 
 

@@ -98,7 +98,9 @@ class D4RTConfig:
             and a sky 50 m away beside a box at 1 m asks a linear head for outputs 50 times apart, which its
             LayerNorm'd features and weight decay resist; every tiny model trained with it put the far range 6-17
             times the near one whatever the truth (docs/training.md, stages 21, 64, 67). Under ``"exp"`` a ratio
-            of depths is a difference of the head's outputs.
+            of depths is a difference of the head's outputs. Measured (stages 77-78): trained on from the shipped
+            weights (converted by tools/convert_points_activation.py) no better than linear at equal steps, so
+            linear in every shipped config; kept for models trained from scratch (not measured).
         relative_pose_head: the points head answers in camera t_src and a per-query relative-pose head
             (rotation in the 6D form, translation) moves them, and motion and normals, into camera t_cam;
             identity where t_cam = t_src (not in paper, which regresses the point in camera t_cam

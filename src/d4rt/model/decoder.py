@@ -73,8 +73,9 @@ class PredictionHeads(nn.Module):
     """Final LayerNorm and one linear head per output, then each output's activation.
 
     ``forward(x: (B, N, dim), same_camera: (B, N) bool | None) -> dict`` of (B, N, ...) float32 tensors:
-        points (3): raw, or ``exp_distance`` of it (config ``points_activation``). uv (2): raw (a point may leave the image). visibility_logit (1 -> squeezed) and
-        visibility = sigmoid(logit). motion (3): raw. normals (3): L2-normalised.
+        points (3): raw, or ``exp_distance`` of it (config ``points_activation``). uv (2): raw (a point may leave
+        the image). visibility_logit (1 -> squeezed) and visibility = sigmoid(logit). motion (3): raw. normals (3):
+        L2-normalised.
         confidence (1 -> squeezed): positive, softplus or 1 + exp (config ``confidence_activation``).
 
     With ``relative_pose_head`` the points, motion and normals heads answer in camera t_src and a
