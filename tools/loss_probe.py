@@ -65,7 +65,8 @@ def sample_losses(model: D4RT, samples: list[dict[str, torch.Tensor]], config: T
     terms: dict[str, list[float]] = {}
     for sample in samples:
         batch = {k: v[None] for k, v in sample.items()}
-        out = model(batch["video"], batch["queries"], batch["aspect_ratio"])
+        out = model(batch["video"], batch["queries"], batch["aspect_ratio"],
+                    attention_block=config.loss.attention_block)
         terms_of_sample = (d4rt_loss(out, batch, config.loss)[1] | motion_terms(out["uv"][0], sample)
                            | query_kind_terms(out["points"][0], sample))
         for key, value in terms_of_sample.items():

@@ -80,12 +80,13 @@ class D4RT(nn.Module):
         return self.encoder(video, aspect_ratio.to(video.device))
 
     def decode(self, queries: torch.Tensor, scene_kv: SceneKV, patch_video: torch.Tensor | None,
-               share_sources: bool = False) -> dict[str, torch.Tensor]:
+               share_sources: bool = False, attention_block: int | None = None) -> dict[str, torch.Tensor]:
         """Checked ``queries: (B, N, 5)`` + per-layer scene keys/values -> dict of ``(B, N, ...)``.
-        ``share_sources``: embed each run of equal (u, v, t_src) once (see :class:`QueryEmbedding`)."""
+        ``share_sources``: embed each run of equal (u, v, t_src) once (see :class:`QueryEmbedding`);
+        ``attention_block``: see :meth:`QueryDecoder.forward`."""
         tokens = self.query_embedding(queries, patch_video, share_sources)
         same_camera = queries[..., 2].round() == queries[..., 4].round() if self.config.relative_pose_head else None
-        out = self.decoder(tokens, scene_kv, same_camera)
+        out = self.decoder(tokens, scene_kv, same_camera, attention_block)
         if self.config.uv_residual:  # the head answers the displacement (config uv_residual)
             out["uv"] = out["uv"] + queries[..., :2].float()
         return out
@@ -98,6 +99,7 @@ class D4RT(nn.Module):
         aspect_ratio: torch.Tensor,
         patch_video: torch.Tensor | None = None,
         check_inputs: bool = True,
+        attention_block: int | None = None,
     ) -> dict[str, torch.Tensor]:
         """Batched training forward.
 
@@ -109,12 +111,16 @@ class D4RT(nn.Module):
             patch_video: ``(B, T, h, w, 3)`` frames to cut RGB patches from when
                 ``rgb_patch_source == "original"`` (required then); by default ``video`` itself.
             check_inputs: validate shapes and ranges (one pass over the inputs; False skips it).
+            attention_block: also return where the queries look in that decoder block (below).
 
         Returns:
             dict of ``points (B, N, 3)``, ``uv (B, N, 2)``, ``visibility (B, N)`` (probability),
             ``visibility_logit (B, N)`` (for BCE-with-logits), ``motion (B, N, 3)``,
             ``normals (B, N, 3)`` (unit), ``confidence (B, N)`` (positive); with ``config.dense_depth_head``
-            also ``dense_log_depth (B, T, H, W)`` (log-depth of every input pixel up to a per-clip constant).
+            also ``dense_log_depth (B, T, H, W)`` (log-depth of every input pixel up to a per-clip constant);
+            with ``attention_block`` also ``attention_log_probs (B, N, M)`` (that block's first head's log
+            attention over the M scene tokens: the tubelet tokens in (time step, row, column) order, then the
+            aspect-ratio token) and ``token_grid`` (4,) long: time steps, rows, columns, frames per time step.
         """
         if check_inputs:
             video, queries, aspect_ratio, patch_video = self._check_batch(video, queries, aspect_ratio, patch_video)
@@ -123,7 +129,11 @@ class D4RT(nn.Module):
                 raise UserError("config rgb_patch_source='original' needs patch_video (the original frames)")
             patch_video = video
         tokens = self.encode_tokens(video, aspect_ratio)
-        out = self.decode(queries, self.decoder.project_scene(tokens), patch_video)
+        out = self.decode(queries, self.decoder.project_scene(tokens), patch_video, attention_block=attention_block)
+        if attention_block is not None:
+            k, p = self.config.tubelet_frames, self.config.patch_size
+            out["token_grid"] = torch.tensor([-(-video.shape[1] // k), video.shape[2] // p, video.shape[3] // p, k],
+                                             device=tokens.device)
         if self.dense_depth is not None:
             out["dense_log_depth"] = self.dense_depth(tokens, *video.shape[1:4])
         return out

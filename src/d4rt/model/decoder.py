@@ -13,6 +13,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from d4rt.config import D4RTConfig
+from d4rt.errors import UserError
 from d4rt.model.layers import MLP, CrossAttention, run_block
 
 # Channels of the raw head output, in order (13 numbers per query, as in the paper).
@@ -160,12 +161,23 @@ class QueryDecoder(nn.Module):
         return [block.attn.project_context(tokens) for block in self.blocks]
 
     def forward(self, query_tokens: torch.Tensor, scene_kv: SceneKV,
-                same_camera: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+                same_camera: torch.Tensor | None = None, attention_block: int | None = None
+                ) -> dict[str, torch.Tensor]:
         """``query_tokens: (B, N, decoder_dim)``, ``scene_kv`` from :meth:`project_scene`, ``same_camera:
         (B, N)`` bool (t_cam == t_src; needed with ``relative_pose_head``) -> dict of ``(B, N, ...)``
-        outputs (see :class:`PredictionHeads`)."""
+        outputs (see :class:`PredictionHeads`); with ``attention_block`` also ``attention_log_probs (B, N, M)``,
+        the log attention weights of that block's first head over the M scene tokens (a training signal on
+        where a query looks; the answers do not change)."""
+        if attention_block is not None and not 0 <= attention_block < len(self.blocks):
+            raise UserError(f"attention_block must be 0-{len(self.blocks) - 1}, got {attention_block}")
         recompute = self.config.gradient_checkpointing and self.training
         x = query_tokens
-        for block, (keys, values) in zip(self.blocks, scene_kv, strict=True):
+        attention = None
+        for index, (block, (keys, values)) in enumerate(zip(self.blocks, scene_kv, strict=True)):
+            if index == attention_block:
+                attention = block.attn.attention_log_probs(block.norm1(x), keys)
             x = run_block(block, x, keys, values, recompute=recompute)
-        return self.heads(x, same_camera)
+        out = self.heads(x, same_camera)
+        if attention is not None:
+            out["attention_log_probs"] = attention
+        return out

@@ -79,6 +79,15 @@ class CrossAttention(nn.Module):
             keys, values = keys.expand(q.shape[0], -1, -1, -1), values.expand(q.shape[0], -1, -1, -1)
         return self.proj(merge_heads(F.scaled_dot_product_attention(q, keys, values)))
 
+    def attention_log_probs(self, x: torch.Tensor, keys: torch.Tensor, head: int = 0) -> torch.Tensor:
+        """The log of head ``head``'s attention weights: ``x: (B, N, dim)``, keys from :meth:`project_context`
+        -> ``(B, N, M)`` float32, each row a log-distribution over the M context tokens (what :meth:`forward`'s
+        scaled dot-product attention weighs the values with). For training losses on where a query looks."""
+        q = split_heads(self.q(x), self.heads)[:, head].float()
+        k = keys[:, head].float()
+        logits = q @ k.transpose(-1, -2) / q.shape[-1] ** 0.5
+        return torch.log_softmax(logits, dim=-1)
+
 
 class MLP(nn.Module):
     """Two linear layers with GELU between: ``(..., dim) -> (..., dim)``."""

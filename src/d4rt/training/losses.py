@@ -64,6 +64,15 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   ``e = pred - log(z)``, invariant to a per-clip scale of depth. Why: a depth query is ~2% of the ~1,000
   queries a clip is asked, while this term supervises every pixel of every frame through the scene tokens
   the queries read (stage 67, docs/training.md); the queries still answer every output.
+- *Correspondence attention* (not in paper; ``weight_correspondence`` > 0): the cross-entropy between the
+  first head's attention of decoder block ``correspondence_block`` and where the query's point lies at t_tgt:
+  the scene tokens of t_tgt's time step around the true (u, v) in frame t_tgt, weighted bilinearly over the
+  four token centres nearest it. Over the queries whose point is visible in frame t_tgt (in front, inside the
+  image, not occluded). Why: the trained tiny models' decoders spread their attention over every time step
+  alike (the mass on t_tgt's step equals the uniform share in every block and head, stage 79,
+  docs/training.md), so no query reads the frame it is asked about, and their tracks hardly move (a point's
+  predicted displacement 0.02-0.07 of the image where it truly moves 0.3-0.5). The term tells one head where to
+  look; the answers still come from L3D and L2D, and inference is unchanged.
 - *Ray angle* (not in paper; ``weight_ray_angle`` > 0): the angle between the predicted and the true point
   as seen from camera t_cam (the angle between the two vectors, whatever their lengths), divided by the
   clip's mean angle of its true in-front points off the optical axis (a stand-in for half the field of
@@ -119,6 +128,9 @@ class LossConfig:
     weight_log_depth: (not in paper) weight of the scale-invariant log-depth term (module docstring); 0 = off.
     weight_dense_depth: (not in paper) weight of the dense depth term (module docstring); 0 = off. Needs a
         model with ``dense_depth_head`` and batches with ``depth`` maps.
+    weight_correspondence: (not in paper) weight of the correspondence-attention term (module docstring);
+        0 = off. The model is then asked for ``attention_log_probs`` of decoder block ``correspondence_block``
+        (:attr:`attention_block`).
     ray_angle_spread: (not in paper) what the ray-angle term divides each clip's angles by: "target", its
         true points' mean angle off the axis, or "geometric", the geometric mean of that and the
         prediction's (module docstring).
@@ -140,12 +152,19 @@ class LossConfig:
     weight_ray_angle: float = 0.0
     ray_angle_spread: str = "target"
     weight_dense_depth: float = 0.0
+    weight_correspondence: float = 0.0
+    correspondence_block: int = 0
+
+    @property
+    def attention_block(self) -> int | None:
+        """The decoder block whose attention the loss needs (the model's ``attention_block``), or None."""
+        return self.correspondence_block if self.weight_correspondence > 0 else None
 
     def validate(self) -> None:
         optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
                      "weight_normal", "weight_pose", "weight_log_depth", "weight_ray_angle",
-                     "weight_dense_depth", *optional):
+                     "weight_dense_depth", "weight_correspondence", *optional):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
                 raise UserError(f"loss {name} must be a number >= 0, got {value!r}")
@@ -155,6 +174,8 @@ class LossConfig:
         if self.ray_angle_spread not in RAY_ANGLE_SPREADS:
             raise UserError(f"loss ray_angle_spread must be one of {', '.join(RAY_ANGLE_SPREADS)}, "
                             f"got {self.ray_angle_spread!r}")
+        if not isinstance(self.correspondence_block, int) or self.correspondence_block < 0:
+            raise UserError(f"loss correspondence_block must be an integer >= 0, got {self.correspondence_block!r}")
         if self.confidence_stop_gradient and not self.confidence_weighting:
             raise UserError("loss confidence_stop_gradient needs confidence_weighting (there is no confidence term)")
         if self.confidence_weighting and self.weight_confidence <= 0:
@@ -217,6 +238,48 @@ def dense_depth_loss(pred_log_depth: torch.Tensor, depth: torch.Tensor) -> torch
     return masked_mean(centred.abs(), flat_known)
 
 
+def correspondence_targets(queries: torch.Tensor, uv: torch.Tensor, token_grid: torch.Tensor
+                           ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Where each query's point lies among the scene tokens: the four tokens of t_tgt's time step whose centres
+    surround the true (u, v) in frame t_tgt, and their bilinear weights (summing to 1; a point within half a
+    token of the border shares its weight between the border tokens).
+
+    queries: (B, N, 5) [u, v, t_src, t_tgt, t_cam]; uv: (B, N, 2) true (u, v) in frame t_tgt, in [0, 1];
+    token_grid: (4,) time steps, rows, columns, frames per step (the model's ``token_grid``).
+    Returns ``(index (B, N, 4) long, weight (B, N, 4))``: token indices in (time step, row, column) order.
+    """
+    steps, rows, cols, per_step = (int(v) for v in token_grid)
+    step = (queries[..., 3].round().long() // per_step).clamp(0, steps - 1)
+    x = uv[..., 0].float().clamp(0, 1) * cols - 0.5  # token centres at integers
+    y = uv[..., 1].float().clamp(0, 1) * rows - 0.5
+    x0, y0 = x.floor(), y.floor()
+    fx, fy = x - x0, y - y0
+    index, weight = [], []
+    for dy, wy in ((0, 1 - fy), (1, fy)):
+        for dx, wx in ((0, 1 - fx), (1, fx)):
+            row = (y0 + dy).clamp(0, rows - 1).long()
+            col = (x0 + dx).clamp(0, cols - 1).long()
+            index.append((step * rows + row) * cols + col)
+            weight.append(wy * wx)
+    return torch.stack(index, -1), torch.stack(weight, -1)
+
+
+def correspondence_loss(log_probs: torch.Tensor, token_grid: torch.Tensor, batch: dict[str, torch.Tensor]
+                        ) -> torch.Tensor:
+    """The correspondence-attention term (module docstring): a scalar.
+
+    log_probs: (B, N, M) a head's log attention over the scene tokens; token_grid: (4,) as
+    :func:`correspondence_targets`; batch: ``queries``, ``uv``, ``visibility``, ``valid``, ``uv_valid``.
+    A batch without any visible query gives 0 (still attached to the graph).
+    """
+    uv = batch["uv"].float()
+    seen = (batch["valid"].bool() & batch["uv_valid"].bool() & (batch["visibility"] > 0.5)
+            & ((uv >= 0) & (uv <= 1)).all(-1))
+    index, weight = correspondence_targets(batch["queries"], torch.where(seen[..., None], uv, 0.5), token_grid)
+    cross_entropy = -(weight * log_probs.float().gather(-1, index)).sum(-1)
+    return masked_mean(cross_entropy, seen)
+
+
 def vector_angle(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Angle in radians between the vectors ``a`` and ``b`` (..., 3), elementwise: (...). ``atan2`` of the
     cross and dot products stays exact near 0 and pi, where ``acos`` of a cosine loses its precision."""
@@ -274,8 +337,8 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         ``(total, terms)``: the scalar to minimise and a dict of detached scalars, each unweighted:
         ``3d`` (plain L3D), ``3d_confident`` (c * L3D), ``confidence`` (-log c), ``2d``, ``visibility``,
         ``motion``, ``normal``, plus ``confidence_mean`` (mean c) and ``valid_fraction``, ``uv_fraction``;
-        with their weights > 0 also ``pose_rotation``, ``pose_translation``, ``log_depth``, ``ray_angle`` and
-        ``dense_depth``.
+        with their weights > 0 also ``pose_rotation``, ``pose_translation``, ``log_depth``, ``ray_angle``,
+        ``dense_depth`` and ``correspondence``.
     """
     config = config or LossConfig()
     p = {k: pred[k].float() for k in PREDICTION_KEYS}
@@ -335,6 +398,13 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
             raise UserError("loss weight_dense_depth needs a model with dense_depth_head and batches with depth maps")
         optional_terms["dense_depth"] = dense_depth_loss(pred["dense_log_depth"], batch["depth"].float())
         total = total + config.weight_dense_depth * optional_terms["dense_depth"]
+    if config.weight_correspondence > 0:
+        if "attention_log_probs" not in pred:
+            raise UserError("loss weight_correspondence needs the model's attention_log_probs: call the model with "
+                            "attention_block=config.attention_block")
+        optional_terms["correspondence"] = correspondence_loss(pred["attention_log_probs"], pred["token_grid"],
+                                                               batch)
+        total = total + config.weight_correspondence * optional_terms["correspondence"]
     terms = {
         "3d": masked_mean(l3d, valid),
         "3d_confident": weighted_3d if config.confidence_weighting else masked_mean(confidence * l3d, valid),

@@ -246,7 +246,8 @@ class Trainer:
                         batch = {k: v.to(context.device, non_blocking=True) for k, v in next(batches).items()}
                         with gradient_sync(model, micro == run.grad_accum - 1):
                             with self.autocast:
-                                out = model(batch["video"], batch["queries"], batch["aspect_ratio"])
+                                out = model(batch["video"], batch["queries"], batch["aspect_ratio"],
+                                            attention_block=cfg.loss.attention_block)
                             loss, terms = d4rt_loss(out, batch, cfg.loss)
                             (loss / run.grad_accum).backward()
                         for key, value in terms.items():

@@ -85,7 +85,8 @@ class Validator:
             sample = make_training_sample(clip, view, rng, self.sampler, AugmentConfig(enabled=False))
             batch = {k: v[None].to(device) for k, v in sample.items()}
             with autocast:
-                out = model(batch["video"], batch["queries"], batch["aspect_ratio"])
+                out = model(batch["video"], batch["queries"], batch["aspect_ratio"],
+                            attention_block=self.loss.attention_block)
             for key, value in d4rt_loss(out, batch, self.loss)[1].items():
                 losses.setdefault(key, []).append(float(value))
             sequence = sequence_from_clip(clip, f"clip_{index}", self.config.track_points, self.config.seed + index)
