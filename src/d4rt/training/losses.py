@@ -341,6 +341,9 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         ``dense_depth`` and ``correspondence``.
     """
     config = config or LossConfig()
+    if config.weight_correspondence > 0 and "attention_log_probs" not in pred:
+        raise UserError("loss weight_correspondence needs the model's attention_log_probs: call the model with "
+                        "attention_block=config.attention_block")
     p = {k: pred[k].float() for k in PREDICTION_KEYS}
     valid = batch["valid"].bool()
     uv_valid = batch["uv_valid"].bool() & valid
@@ -399,9 +402,6 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         optional_terms["dense_depth"] = dense_depth_loss(pred["dense_log_depth"], batch["depth"].float())
         total = total + config.weight_dense_depth * optional_terms["dense_depth"]
     if config.weight_correspondence > 0:
-        if "attention_log_probs" not in pred:
-            raise UserError("loss weight_correspondence needs the model's attention_log_probs: call the model with "
-                            "attention_block=config.attention_block")
         optional_terms["correspondence"] = correspondence_loss(pred["attention_log_probs"], pred["token_grid"],
                                                                batch)
         total = total + config.weight_correspondence * optional_terms["correspondence"]
