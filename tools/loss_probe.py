@@ -1,6 +1,6 @@
 """The training loss of checkpoints on held-out samples drawn exactly as a training config draws them (issue 14).
 
-    python tools/loss_probe.py CHECKPOINT [CHECKPOINT ...] --config configs/ship-tiny-cpu-stage39.yaml \\
+    python tools/loss_probe.py CHECKPOINT [CHECKPOINT ...] --config configs/ship-tiny-cpu-stage39.yaml [--set KEY=VALUE] \\
         --out probe.json [--samples 64] [--queries 2048]
 
 Why: the held-out benchmark figures (depth, focal, camera probes) move by less than their clips' spread in a run of
@@ -36,6 +36,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from compare_evals import paired_bootstrap  # noqa: E402
 
+from d4rt.cli.train import parse_overrides  # noqa: E402
 from d4rt.data import build_dataset  # noqa: E402
 from d4rt.errors import UserError  # noqa: E402
 from d4rt.model import D4RT  # noqa: E402
@@ -45,7 +46,8 @@ from d4rt.training.losses import d4rt_loss, point_loss  # noqa: E402
 HELD_OUT_SEED = 6_000_000
 # The terms reported in the table (all terms are in the JSON).
 HIGHER_IS_BETTER = ("2d_slope",)
-SHOWN = ("3d", "2d", "2d_moved", "2d_still", "2d_slope", "pose_rotation", "pose_translation", "confidence_mean")
+SHOWN = ("3d", "2d", "2d_moved", "2d_still", "2d_slope", "pose_rotation", "pose_translation", "confidence_mean",
+         "correspondence")
 
 
 def held_out_samples(config: TrainConfig, samples: int, queries: int, seed: int = HELD_OUT_SEED
@@ -126,6 +128,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoints", nargs="+", help="model directories (model.safetensors + config.json)")
     parser.add_argument("--config", required=True, help="the training config whose samples and loss are probed")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a field of --config, as d4rt train --set (e.g. loss.weight_correspondence=0.2)")
     parser.add_argument("--samples", type=int, default=64)
     parser.add_argument("--queries", type=int, default=2048)
     parser.add_argument("--out", required=True)
@@ -135,7 +139,8 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--samples must be at least 2 and --queries at least 1")
     torch.set_num_threads(args.threads)
     try:  # the config and every checkpoint load (strictly) before anything is rendered: a bad path fails at once
-        config = TrainConfig.load(args.config)
+        config = TrainConfig.load(args.config, parse_overrides(args.set))
+        config.validate()
         networks = {checkpoint: D4RT.from_pretrained(checkpoint) for checkpoint in args.checkpoints}
     except UserError as error:
         parser.error(str(error))
@@ -156,7 +161,7 @@ def main(argv: list[str] | None = None) -> None:
                 both = ~(np.isnan(base) | np.isnan(new))  # a sample without moved queries has no 2d_* terms
                 paired[checkpoint][key] = paired_bootstrap(base[both], new[both], np.ones(int(both.sum())),
                                                            lower_is_better=key not in HIGHER_IS_BETTER)
-    result = {"config": args.config, "seed": HELD_OUT_SEED, "samples": args.samples, "queries": args.queries,
+    result = {"config": args.config, "overrides": args.set, "seed": HELD_OUT_SEED, "samples": args.samples, "queries": args.queries,
               "reference": reference, "models": models, "paired_against_reference": paired}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=1))

@@ -123,3 +123,16 @@ def test_a_config_with_track_clips_is_refused(tmp_path, capsys):
         loss_probe.main([str(tmp_path / "missing"), "--config", str(ROOT / "configs" / "tiny-cpu.yaml"),
                          "--out", str(tmp_path / "x.json")])
     assert "missing" in capsys.readouterr().err
+
+
+def test_set_overrides_the_config_and_is_checked(config_path, tmp_path, capsys):
+    out = tmp_path / "probe.json"
+    loss_probe.main([str(SHIPPED), "--config", str(config_path), "--samples", "2", "--queries", "32", "--out",
+                     str(out), "--set", "loss.weight_correspondence=0.2"])
+    result = json.loads(out.read_text())
+    assert result["overrides"] == ["loss.weight_correspondence=0.2"]
+    assert result["models"][str(SHIPPED)]["mean"]["correspondence"] > 0  # the term the override turned on
+    with pytest.raises(SystemExit):  # a block the decoder does not have: named, before anything is rendered
+        loss_probe.main([str(SHIPPED), "--config", str(config_path), "--out", str(out), "--set",
+                         "loss.weight_correspondence=0.2", "--set", "loss.correspondence_block=9"])
+    assert "correspondence_block must be below" in capsys.readouterr().err
