@@ -4,7 +4,7 @@ sys.path.insert(0, "/work/main/tools")
 from occlusion_probe import in_frame, HELD_OUT_SEED
 from d4rt.evaluation.synthetic_benchmark import clip_specs
 from d4rt.model import D4RT
-torch.set_num_threads(2)
+torch.set_num_threads(1)
 model = D4RT.from_pretrained("/work/main/src/d4rt/assets/d4rt-tiny")
 specs = [replace(s, seed=HELD_OUT_SEED + s.index) for s in clip_specs()[::3][:16]]
 rows = []

@@ -5,7 +5,7 @@ from occlusion_probe import in_frame, HELD_OUT_SEED
 from d4rt.evaluation.synthetic_benchmark import clip_specs
 from d4rt.model import D4RT
 from d4rt.geometry.camera import project
-torch.set_num_threads(2)
+torch.set_num_threads(1)
 model = D4RT.from_pretrained(sys.argv[1])
 specs = [replace(s, seed=HELD_OUT_SEED + s.index) for s in clip_specs()[::3][:3]]
 for spec in specs:
