@@ -118,6 +118,11 @@ class D4RTConfig:
             pixel's log-depth from the scene tokens so that ``loss.weight_dense_depth`` can supervise the encoder
             at every pixel (not in paper; inference never uses it). Why: the queries alone leave the sky and a
             near box at nearly one depth in the tiny models trained so far (docs/training.md, stage 67).
+        target_frame_heads: the first this many heads of every decoder cross-attention attend only to the scene
+            tokens of the query's t_tgt time step (not in paper; 0 = off). Why: the trained tiny models' decoders
+            spread their attention over every time step alike although the tokens carry their time step, so no
+            query reads the frame it asks about and their tracks do not follow their points (docs/training.md,
+            stages 79-81). No parameters are added; a checkpoint trained without it can be trained on with it.
 
     Inference default
         pose_pairs: the camera recipe's pairing that ``Reconstruction.from_model`` uses for this model when the
@@ -167,6 +172,7 @@ class D4RTConfig:
     relative_pose_head: bool = False
     uv_residual: bool = False
     dense_depth_head: bool = False
+    target_frame_heads: int = 0
     # inference default
     pose_pairs: str = "first"
     flip_average: bool = False
@@ -227,6 +233,9 @@ class D4RTConfig:
                      "dense_depth_head", "flip_average"):
             if not isinstance(getattr(self, name), bool):
                 raise UserError(f"config field {name} must be true or false, got {getattr(self, name)!r}")
+        if not _is_int(self.target_frame_heads) or not 0 <= self.target_frame_heads <= self.decoder_heads:
+            raise UserError(f"config target_frame_heads must be an integer in 0-{self.decoder_heads} (decoder_heads), "
+                            f"got {self.target_frame_heads!r}")
         check_pose_pairs(self.pose_pairs, "config pose_pairs")
         if min(self.pixel_std) <= 0:
             raise UserError(f"config pixel_std must be positive, got {list(self.pixel_std)}")

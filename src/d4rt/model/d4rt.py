@@ -22,6 +22,7 @@ from d4rt.errors import UserError
 from d4rt.model.decoder import QueryDecoder, SceneKV
 from d4rt.model.dense_depth import DenseDepthHead
 from d4rt.model.encoder import VideoEncoder
+from d4rt.model.layers import FrameRestriction
 from d4rt.model.inputs import (
     as_tensor,
     check_aspect_ratio,
@@ -80,13 +81,21 @@ class D4RT(nn.Module):
         return self.encoder(video, aspect_ratio.to(video.device))
 
     def decode(self, queries: torch.Tensor, scene_kv: SceneKV, patch_video: torch.Tensor | None,
-               share_sources: bool = False, attention_block: int | None = None) -> dict[str, torch.Tensor]:
+               share_sources: bool = False, attention_block: int | None = None,
+               tokens_per_step: int | None = None) -> dict[str, torch.Tensor]:
         """Checked ``queries: (B, N, 5)`` + per-layer scene keys/values -> dict of ``(B, N, ...)``.
         ``share_sources``: embed each run of equal (u, v, t_src) once (see :class:`QueryEmbedding`);
-        ``attention_block``: see :meth:`QueryDecoder.forward`."""
+        ``attention_block``: see :meth:`QueryDecoder.forward`; ``tokens_per_step``: tubelet tokens per time step
+        of the scene (rows x columns), needed with config ``target_frame_heads``."""
         tokens = self.query_embedding(queries, patch_video, share_sources)
         same_camera = queries[..., 2].round() == queries[..., 4].round() if self.config.relative_pose_head else None
-        out = self.decoder(tokens, scene_kv, same_camera, attention_block)
+        frame = None
+        if self.config.target_frame_heads:
+            if tokens_per_step is None:
+                raise ValueError("config target_frame_heads needs tokens_per_step")
+            steps = queries[..., 3].round().long() // self.config.tubelet_frames
+            frame = FrameRestriction(steps, tokens_per_step, self.config.target_frame_heads)
+        out = self.decoder(tokens, scene_kv, same_camera, attention_block, frame)
         if self.config.uv_residual:  # the head answers the displacement (config uv_residual)
             out["uv"] = out["uv"] + queries[..., :2].float()
         return out
@@ -129,7 +138,9 @@ class D4RT(nn.Module):
                 raise UserError("config rgb_patch_source='original' needs patch_video (the original frames)")
             patch_video = video
         tokens = self.encode_tokens(video, aspect_ratio)
-        out = self.decode(queries, self.decoder.project_scene(tokens), patch_video, attention_block=attention_block)
+        per_step = (video.shape[2] // self.config.patch_size) * (video.shape[3] // self.config.patch_size)
+        out = self.decode(queries, self.decoder.project_scene(tokens), patch_video, attention_block=attention_block,
+                          tokens_per_step=per_step)
         if attention_block is not None:
             k, p = self.config.tubelet_frames, self.config.patch_size
             out["token_grid"] = torch.tensor([-(-video.shape[1] // k), video.shape[2] // p, video.shape[3] // p, k],

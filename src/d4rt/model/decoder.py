@@ -14,7 +14,7 @@ from torch import nn
 
 from d4rt.config import D4RTConfig
 from d4rt.errors import UserError
-from d4rt.model.layers import MLP, CrossAttention, run_block
+from d4rt.model.layers import MLP, CrossAttention, FrameRestriction, run_block
 
 # Channels of the raw head output, in order (13 numbers per query, as in the paper).
 HEAD_CHANNELS = {"points": 3, "uv": 2, "visibility_logit": 1, "motion": 3, "normals": 3, "confidence": 1}
@@ -32,8 +32,9 @@ class CrossAttentionBlock(nn.Module):
         self.norm2 = nn.LayerNorm(dim, eps=eps)
         self.mlp = MLP(dim, mlp_dim)
 
-    def forward(self, x: torch.Tensor, keys: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
-        x = x + self.attn(self.norm1(x), keys, values)
+    def forward(self, x: torch.Tensor, keys: torch.Tensor, values: torch.Tensor,
+                frame: FrameRestriction | None = None) -> torch.Tensor:
+        x = x + self.attn(self.norm1(x), keys, values, frame)
         return x + self.mlp(self.norm2(x))
 
 
@@ -161,22 +162,25 @@ class QueryDecoder(nn.Module):
         return [block.attn.project_context(tokens) for block in self.blocks]
 
     def forward(self, query_tokens: torch.Tensor, scene_kv: SceneKV,
-                same_camera: torch.Tensor | None = None, attention_block: int | None = None
-                ) -> dict[str, torch.Tensor]:
+                same_camera: torch.Tensor | None = None, attention_block: int | None = None,
+                frame: FrameRestriction | None = None) -> dict[str, torch.Tensor]:
         """``query_tokens: (B, N, decoder_dim)``, ``scene_kv`` from :meth:`project_scene`, ``same_camera:
         (B, N)`` bool (t_cam == t_src; needed with ``relative_pose_head``) -> dict of ``(B, N, ...)``
         outputs (see :class:`PredictionHeads`); with ``attention_block`` also ``attention_log_probs (B, N, M)``,
         the log attention weights of that block's first head over the M scene tokens (a training signal on
-        where a query looks; the answers do not change)."""
+        where a query looks; the answers do not change). ``frame``: the queries' time steps when the config
+        has ``target_frame_heads`` (:class:`FrameRestriction`; required then)."""
         if attention_block is not None and not 0 <= attention_block < len(self.blocks):
             raise UserError(f"attention_block must be 0-{len(self.blocks) - 1}, got {attention_block}")
+        if self.config.target_frame_heads and frame is None:
+            raise ValueError("target_frame_heads needs each query's time step (frame)")
         recompute = self.config.gradient_checkpointing and self.training
         x = query_tokens
         attention = None
         for index, (block, (keys, values)) in enumerate(zip(self.blocks, scene_kv, strict=True)):
             if index == attention_block:
-                attention = block.attn.attention_log_probs(block.norm1(x), keys)
-            x = run_block(block, x, keys, values, recompute=recompute)
+                attention = block.attn.attention_log_probs(block.norm1(x), keys, frame=frame)
+            x = run_block(block, x, keys, values, frame, recompute=recompute)
         out = self.heads(x, same_camera)
         if attention is not None:
             out["attention_log_probs"] = attention

@@ -184,12 +184,19 @@ class EncodedScene:
             extra = padded_rows(rows, chunk) - rows if pad and rows else 0
             if extra:  # repeats of the last query, answered and dropped
                 part = torch.cat([part, part[-1:].expand(extra, -1)])
-            answer = self.model.decode(part[None], self.scene_kv(cache), self.patch_video, share_sources)
+            answer = self.model.decode(part[None], self.scene_kv(cache), self.patch_video, share_sources,
+                                       tokens_per_step=self.tokens_per_step)
             if not outputs:
                 outputs = {key: answer[key].new_empty((n, *answer[key].shape[2:])) for key in OUTPUT_KEYS}
             for key in OUTPUT_KEYS:
                 outputs[key][start:start + rows] = answer[key][0, :rows]
         return outputs
+
+    @property
+    def tokens_per_step(self) -> int:
+        """Tubelet tokens per time step of the scene (rows x columns; the aspect-ratio token excluded)."""
+        steps = -(-self.num_frames // self.model.config.tubelet_frames)
+        return (self.tokens.shape[1] - 1) // steps
 
     def __repr__(self) -> str:
         return (f"EncodedScene(frames={self.num_frames}, original={self.width}x{self.height}, "

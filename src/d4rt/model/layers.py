@@ -11,6 +11,7 @@ Keys get no bias: softmax is invariant to it, so it would never receive a gradie
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -72,21 +73,67 @@ class CrossAttention(nn.Module):
         # Contiguous per head: attention kernels then read them without a copy on every reuse.
         return split_heads(k, self.heads).contiguous(), split_heads(v, self.heads).contiguous()
 
-    def forward(self, x: torch.Tensor, keys: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
-        """``x: (B, N, dim)``, keys/values from :meth:`project_context` (batch 1 broadcasts) -> ``(B, N, dim)``."""
+    def forward(self, x: torch.Tensor, keys: torch.Tensor, values: torch.Tensor,
+                frame: FrameRestriction | None = None) -> torch.Tensor:
+        """``x: (B, N, dim)``, keys/values from :meth:`project_context` (batch 1 broadcasts) -> ``(B, N, dim)``.
+        With ``frame`` its first ``frame.heads`` heads attend only to the tokens of each query's own time step."""
         q = split_heads(self.q(x), self.heads)
         if keys.shape[0] != q.shape[0]:
             keys, values = keys.expand(q.shape[0], -1, -1, -1), values.expand(q.shape[0], -1, -1, -1)
-        return self.proj(merge_heads(F.scaled_dot_product_attention(q, keys, values)))
+        if frame is None or frame.heads == 0:
+            return self.proj(merge_heads(F.scaled_dot_product_attention(q, keys, values)))
+        k = frame.heads
+        within = frame.attend(q[:, :k], keys[:, :k], values[:, :k])
+        if k == self.heads:
+            return self.proj(merge_heads(within))
+        rest = F.scaled_dot_product_attention(q[:, k:], keys[:, k:], values[:, k:])
+        return self.proj(merge_heads(torch.cat([within, rest], dim=1)))
 
-    def attention_log_probs(self, x: torch.Tensor, keys: torch.Tensor, head: int = 0) -> torch.Tensor:
+    def attention_log_probs(self, x: torch.Tensor, keys: torch.Tensor, head: int = 0,
+                            frame: FrameRestriction | None = None) -> torch.Tensor:
         """The log of head ``head``'s attention weights: ``x: (B, N, dim)``, keys from :meth:`project_context`
         -> ``(B, N, M)`` float32, each row a log-distribution over the M context tokens (what :meth:`forward`'s
-        scaled dot-product attention weighs the values with). For training losses on where a query looks."""
+        scaled dot-product attention weighs the values with; -inf outside the query's time step for a head that
+        ``frame`` restricts). For training losses on where a query looks."""
         q = split_heads(self.q(x), self.heads)[:, head].float()
         k = keys[:, head].float()
         logits = q @ k.transpose(-1, -2) / q.shape[-1] ** 0.5
+        if frame is not None and head < frame.heads:
+            logits = logits.masked_fill(~frame.mask(logits.shape[-1]), float("-inf"))
         return torch.log_softmax(logits, dim=-1)
+
+
+@dataclass(frozen=True)
+class FrameRestriction:
+    """Which scene tokens a query's frame-restricted heads see: the ``tokens_per_step`` tokens of its time step.
+
+    ``steps: (B, N)`` long, each query's tubelet time step (t_tgt // tubelet_frames); ``tokens_per_step``: tubelet
+    tokens per time step (rows x columns); ``heads``: how many heads, the first ones, are restricted. The context
+    tokens are in (time step, row, column) order, any further tokens (the aspect-ratio token) after them.
+    """
+
+    steps: torch.Tensor
+    tokens_per_step: int
+    heads: int
+
+    def attend(self, q: torch.Tensor, keys: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        """Attention of ``q: (B, h, N, d)`` over each query's step of ``keys``, ``values: (B, h, M, d)`` ->
+        ``(B, h, N, d)``. The queries are grouped by step, so each group runs one scaled dot-product attention
+        over that step's tokens (memory stays that of plain attention; flash kernels still apply)."""
+        out = q.new_empty(q.shape[:-1] + (values.shape[-1],))
+        r = self.tokens_per_step
+        for b in range(q.shape[0]):
+            for step in self.steps[b].unique().tolist():
+                rows = (self.steps[b] == step).nonzero().squeeze(1)
+                part = slice(step * r, (step + 1) * r)
+                out[b, :, rows] = F.scaled_dot_product_attention(q[b, :, rows], keys[b, :, part], values[b, :, part])
+        return out
+
+    def mask(self, num_tokens: int) -> torch.Tensor:
+        """``(B, N, num_tokens)`` bool: True on the tokens each query's restricted heads see."""
+        # The aspect-ratio token's index is steps x tokens_per_step: a step no query has.
+        token_step = torch.arange(num_tokens, device=self.steps.device) // self.tokens_per_step
+        return token_step[None, None] == self.steps[..., None]
 
 
 class MLP(nn.Module):

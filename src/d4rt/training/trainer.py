@@ -132,14 +132,17 @@ class Trainer:
             pretrained = D4RT.from_pretrained(spec.init_from)
             state = pretrained.state_dict()
             had_residual, wants_residual = pretrained.config.uv_residual, self.model_config.uv_residual
-            # The differences allowed: adding a part of ADDABLE_PARTS (the relative-pose head, the dense depth head)
-            # and turning the 2D head residual (never undoing any). The camera pairing and flip averaging are inference
-            # defaults, not architecture: the new model keeps its own.
+            # The differences allowed: adding a part of ADDABLE_PARTS (the relative-pose head, the dense depth head),
+            # turning the 2D head residual and restricting more heads to the target frame (never undoing any). The
+            # camera pairing and flip averaging are inference defaults, not architecture: the new model keeps its own.
             wanted = {flag: getattr(self.model_config, flag) for flag in ADDABLE_PARTS}
             dropped = any(getattr(pretrained.config, flag) > wants for flag, wants in wanted.items())
+            frame_heads = self.model_config.target_frame_heads
             same = pretrained.config.replace(uv_residual=wants_residual, pose_pairs=self.model_config.pose_pairs,
-                                             flip_average=self.model_config.flip_average, **wanted)
-            if same != self.model_config or dropped or had_residual > wants_residual:
+                                             flip_average=self.model_config.flip_average,
+                                             target_frame_heads=frame_heads, **wanted)
+            if (same != self.model_config or dropped or had_residual > wants_residual
+                    or pretrained.config.target_frame_heads > frame_heads):
                 raise UserError(f"model.init_from {spec.init_from} has a different model config than model.preset "
                                 f"{spec.preset!r} with its overrides")
             for flag, prefix in ADDABLE_PARTS.items():  # a part the checkpoint lacks keeps its fresh (seeded) weights
