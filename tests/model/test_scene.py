@@ -271,7 +271,7 @@ def test_under_autocast_a_short_chunk_is_decoded_as_a_power_of_two(make_model, r
     queries = random_queries(37, 5)
     seen = []
     decode = model.decode
-    model.decode = lambda q, *a: seen.append(q.shape[1]) or decode(q, *a)
+    model.decode = lambda q, *a, **k: seen.append(q.shape[1]) or decode(q, *a, **k)
     with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16):
         answers = scene.query(queries, chunk_size=16)
         model.decode = decode
