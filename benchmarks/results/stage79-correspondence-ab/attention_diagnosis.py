@@ -17,7 +17,7 @@ sys.path.insert(0, "tools")
 from loss_probe import held_out_samples  # noqa: E402
 
 from d4rt.model import D4RT  # noqa: E402
-from d4rt.model.layers import split_heads  # noqa: E402
+from d4rt.model.layers import FrameRestriction  # noqa: E402
 from d4rt.training.config import TrainConfig  # noqa: E402
 
 torch.set_num_threads(1)
@@ -44,9 +44,11 @@ for checkpoint in sys.argv[1:]:
             m = steps * rows * cols
             token_step = torch.arange(m) // (rows * cols)
             centres = torch.stack([(torch.arange(m) % cols + 0.5) / cols, (torch.arange(m) // cols % rows + 0.5) / rows], -1)
+            heads = model.config.target_frame_heads
+            frame = FrameRestriction(step[None], rows * cols, heads) if heads else None
             for b, (block, (k, v)) in enumerate(zip(model.decoder.blocks, kv)):
-                qh = split_heads(block.attn.q(block.norm1(x)), block.attn.heads)
-                a = torch.softmax(qh @ k.transpose(-1, -2) / qh.shape[-1] ** 0.5, -1)[0]  # (heads, N, M + 1)
+                a = torch.stack([block.attn.attention_log_probs(block.norm1(x), k, h, frame)[0].exp()
+                                 for h in range(block.attn.heads)])  # (heads, N, M + 1), as the block attends
                 on_step = (a[:, :, :m] * (token_step[None, None] == step[None, :, None])).sum(-1)
                 on_cell = a[:, torch.arange(len(cell)), cell]
                 for h in range(a.shape[0]):
@@ -58,7 +60,7 @@ for checkpoint in sys.argv[1:]:
                     errors["attention"] += (pointed - uv).abs().sum(-1)[ok].tolist()
                     errors["uv_head"] += (uv_head - uv).abs().sum(-1)[ok].tolist()
                     errors["no_motion"] += (q[0, :, :2] - uv).abs().sum(-1)[ok].tolist()
-                x = block(x, k, v)
+                x = block(x, k, v, frame)
     print(checkpoint)
     for (b, h), rows_ in stats.items():
         on_step, on_cell, uniform_step, uniform_cell = np.mean(rows_, 0)
