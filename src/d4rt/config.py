@@ -123,6 +123,9 @@ class D4RTConfig:
             spread their attention over every time step alike although the tokens carry their time step, so no
             query reads the frame it asks about and their tracks do not follow their points (docs/training.md,
             stages 79-81). No parameters are added; a checkpoint trained without it can be trained on with it.
+            Measured (stage 81, one head, 1,200 steps from the shipped weights): the head looks only at the right
+            frame but finds the point's old image position there, and the answers did not improve, so off in every
+            shipped config; kept for models trained from scratch or with pretrained features (not measured).
 
     Inference default
         pose_pairs: the camera recipe's pairing that ``Reconstruction.from_model`` uses for this model when the

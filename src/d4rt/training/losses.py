@@ -72,7 +72,9 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   alike (the mass on t_tgt's step equals the uniform share in every block and head, stage 79,
   docs/training.md), so no query reads the frame it is asked about, and their tracks hardly move (a point's
   predicted displacement 0.02-0.07 of the image where it truly moves 0.3-0.5). The term tells one head where to
-  look; the answers still come from L3D and L2D, and inference is unchanged.
+  look; the answers still come from L3D and L2D, and inference is unchanged. Measured (stages 79-81, 1,200 steps
+  from the shipped weights): the head learns the image position, and the frame when pushed, but not the point's new
+  position, and the 2D answers did not improve; off in every shipped config.
 - *Ray angle* (not in paper; ``weight_ray_angle`` > 0): the angle between the predicted and the true point
   as seen from camera t_cam (the angle between the two vectors, whatever their lengths), divided by the
   clip's mean angle of its true in-front points off the optical axis (a stand-in for half the field of
