@@ -22,7 +22,6 @@ from d4rt.errors import UserError
 from d4rt.model.decoder import QueryDecoder, SceneKV
 from d4rt.model.dense_depth import DenseDepthHead
 from d4rt.model.encoder import VideoEncoder
-from d4rt.model.layers import FrameRestriction
 from d4rt.model.inputs import (
     as_tensor,
     check_aspect_ratio,
@@ -31,6 +30,7 @@ from d4rt.model.inputs import (
     encoder_frames,
     pad_to_tubelets,
 )
+from d4rt.model.layers import FrameRestriction
 from d4rt.model.query_embedding import QueryEmbedding
 from d4rt.model.encoded_scene import EncodedScene
 from d4rt.model.weights import bundled_model_dir, check_state_dict, read_checkpoint, save_checkpoint
