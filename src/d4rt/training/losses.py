@@ -71,7 +71,7 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   image, not occluded). Why: the trained tiny models' decoders spread their attention over every time step
   alike (the mass on t_tgt's step equals the uniform share in every block and head, stage 79,
   docs/training.md), so no query reads the frame it is asked about, and their tracks hardly move (a point's
-  predicted displacement 0.02-0.07 of the image where it truly moves 0.3-0.5). The term tells one head where to
+  predicted displacement 0.05 of the image where it truly moves 0.29, at a 20-frame gap). The term tells one head where to
   look; the answers still come from L3D and L2D, and inference is unchanged. Measured (stages 79-81, 1,200 steps
   from the shipped weights): the head learns the image position, and the frame when pushed, but not the point's new
   position, and the 2D answers did not improve; off in every shipped config.
@@ -244,16 +244,16 @@ def correspondence_targets(queries: torch.Tensor, uv: torch.Tensor, token_grid: 
                            ) -> tuple[torch.Tensor, torch.Tensor]:
     """Where each query's point lies among the scene tokens: the four tokens of t_tgt's time step whose centres
     surround the true (u, v) in frame t_tgt, and their bilinear weights (summing to 1; a point within half a
-    token of the border shares its weight between the border tokens).
+    token of the border puts the share of the missing neighbours on the border tokens).
 
     queries: (B, N, 5) [u, v, t_src, t_tgt, t_cam]; uv: (B, N, 2) true (u, v) in frame t_tgt, in [0, 1];
     token_grid: (4,) time steps, rows, columns, frames per step (the model's ``token_grid``).
     Returns ``(index (B, N, 4) long, weight (B, N, 4))``: token indices in (time step, row, column) order.
     """
-    steps, rows, cols, per_step = (int(v) for v in token_grid)
-    step = (queries[..., 3].round().long() // per_step).clamp(0, steps - 1)
-    x = uv[..., 0].float().clamp(0, 1) * cols - 0.5  # token centres at integers
-    y = uv[..., 1].float().clamp(0, 1) * rows - 0.5
+    _, rows, cols, per_step = (int(v) for v in token_grid)
+    step = queries[..., 3].round().long() // per_step
+    x = uv[..., 0].float() * cols - 0.5  # token centres at integers
+    y = uv[..., 1].float() * rows - 0.5
     x0, y0 = x.floor(), y.floor()
     fx, fy = x - x0, y - y0
     index, weight = [], []
