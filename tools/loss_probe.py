@@ -41,6 +41,7 @@ from d4rt.data import build_dataset  # noqa: E402
 from d4rt.errors import UserError  # noqa: E402
 from d4rt.model import D4RT  # noqa: E402
 from d4rt.training.config import TrainConfig  # noqa: E402
+from d4rt.training.data import model_inputs  # noqa: E402
 from d4rt.training.losses import d4rt_loss, point_loss  # noqa: E402
 
 HELD_OUT_SEED = 6_000_000
@@ -56,7 +57,8 @@ def held_out_samples(config: TrainConfig, samples: int, queries: int, seed: int 
     ``queries`` queries each."""
     dataset_config = config.data.dataset
     sampler = dataclasses.replace(dataset_config.sampler, num_queries=queries)
-    dataset = build_dataset(dataclasses.replace(dataset_config, seed=seed, sampler=sampler, render_device="cpu"))
+    dataset = build_dataset(dataclasses.replace(dataset_config, seed=seed, sampler=sampler, render_device="cpu"),
+                            patch_frames=config.model.build().patches_from_original)
     return [dataset[i] for i in tqdm(range(samples), desc="rendering held-out samples", leave=False)]
 
 
@@ -68,7 +70,7 @@ def sample_losses(model: D4RT, samples: list[dict[str, torch.Tensor]], config: T
     for sample in samples:
         batch = {k: v[None] for k, v in sample.items()}
         out = model(batch["video"], batch["queries"], batch["aspect_ratio"],
-                    attention_block=config.loss.attention_block)
+                    attention_block=config.loss.attention_block, **model_inputs(model.config, batch))
         terms_of_sample = (d4rt_loss(out, batch, config.loss)[1] | motion_terms(out["uv"][0], sample)
                            | query_kind_terms(out["points"][0], sample))
         for key, value in terms_of_sample.items():

@@ -245,6 +245,11 @@ class D4RTConfig:
 
     # ------------------------------------------------------------------------------------ derived sizes
     @property
+    def patches_from_original(self) -> bool:
+        """Query RGB patches are cut from the original-resolution frames (a training sample must carry them)."""
+        return self.rgb_patch_size > 0 and self.rgb_patch_source == "original"
+
+    @property
     def grid_size(self) -> int:
         """Tubelets per side of the encoder input: ``image_size // patch_size``."""
         return self.image_size // self.patch_size

@@ -38,9 +38,9 @@ def test_edge_and_blur_filters_are_exact_on_planes():
     assert torch.allclose(magnitude[0, 0, 1:-1], torch.tensor((5 * 0.13) ** 0.5, dtype=torch.float64), atol=1e-12)
     # A symmetric kernel leaves a plane unchanged away from the borders (reach ceil(3 sigma) = 5), and a
     # constant everywhere.
-    blurred = _gaussian_blur(plane, 1.6)
+    blurred = _gaussian_blur(plane, 1.6, 1.6)
     assert torch.allclose(blurred[..., 5:-5, 5:-5], plane[..., 5:-5, 5:-5], atol=1e-12)
-    assert torch.allclose(_gaussian_blur(torch.full((2, 3, 9, 7), 0.25), 2.0), torch.tensor(0.25), atol=1e-7)
+    assert torch.allclose(_gaussian_blur(torch.full((2, 3, 9, 7), 0.25), 2.0, 2.0), torch.tensor(0.25), atol=1e-7)
 
 
 def test_boundary_mask_of_a_window_is_the_crop_of_the_whole_mask(room_clip):

@@ -16,9 +16,9 @@ def counting_source_rows(model):
     rows = []
     original = model.query_embedding.source_tokens
 
-    def counted(queries, patch_video):
+    def counted(queries, patch_video, patch_sizes=None):
         rows.append(queries.shape[0] * queries.shape[1])
-        return original(queries, patch_video)
+        return original(queries, patch_video, patch_sizes)
 
     model.query_embedding.source_tokens = counted
     return rows

@@ -65,7 +65,6 @@ def test_strict_loading_names_the_field(data, message):
     ({"run": {"precision": "fp8"}}, "run.precision"),
     ({"optim": {"lr": 1e-6, "min_lr": 1e-4}}, "min_lr <= lr"),
     ({"optim": {"warmup_steps": 10, "decay_steps": 5}}, "decay_steps"),
-    ({"model": {"preset": "tiny", "overrides": {"rgb_patch_source": "original"}}}, "rgb_patch_source"),
     ({"model": {"preset": "tiny", "overrides": {"depth": 3}}}, "unknown D4RT config field"),
     ({"data": {"dataset": {"augment": {"crop_scale": [0.9, 0.1]}}}}, "crop_scale"),
     ({"loss": {"weight_dense_depth": 1.0}}, "needs model.overrides.dense_depth_head: true"),

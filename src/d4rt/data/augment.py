@@ -17,6 +17,7 @@ import torch.nn.functional as F
 
 from d4rt.errors import UserError
 from d4rt.geometry.view import View
+from d4rt.synthetic.clip import view_rgb
 
 
 CROP_POLICIES = ("paper", "centered", "none")
@@ -107,32 +108,91 @@ def _centered_start(rng: np.random.Generator, full: int, length: int, jitter: fl
     return int(np.clip(round((full - length) / 2 + offset), 0, full - length))
 
 
+@dataclass(frozen=True)
+class PhotometricDraw:
+    """One clip's photometric augmentation, drawn once so that it can be applied alike to several copies of the
+    clip's frames (the encoder's frames and the original-resolution ones RGB patches are cut from).
+
+    jitter: the colour-jitter operations in the order applied, as (op, factor): 0 brightness (a factor),
+    1 contrast (a factor), 2 saturation (a factor), 3 hue (a fraction of a turn); empty for none.
+    color_drop: turn the clip grey. blur_sigma: the Gaussian blur's sigma in pixels of the view's output size,
+    or None for no blur."""
+
+    jitter: tuple[tuple[int, float], ...]
+    color_drop: bool
+    blur_sigma: float | None
+
+
+def draw_photometric(rng: np.random.Generator, config: AugmentConfig) -> PhotometricDraw | None:
+    """The random draws of :func:`photometric_augment` (in its order), or None when augmentation is off."""
+    if not config.enabled:
+        return None
+    jitter = []
+    if rng.uniform() < config.jitter_prob:
+        spreads = (config.brightness, config.contrast, config.saturation)
+        for op in rng.permutation(4):
+            op = int(op)
+            factor = rng.uniform(1 - spreads[op], 1 + spreads[op]) if op < 3 else rng.uniform(-config.hue, config.hue)
+            jitter.append((op, float(factor)))
+    color_drop = bool(rng.uniform() < config.color_drop_prob)
+    blur_sigma = float(rng.uniform(*config.blur_sigma)) if rng.uniform() < config.blur_prob else None
+    return PhotometricDraw(tuple(jitter), color_drop, blur_sigma)
+
+
+def apply_photometric(video: torch.Tensor, draw: PhotometricDraw | None,
+                      pixel_scale: tuple[float, float] = (1.0, 1.0)) -> torch.Tensor:
+    """``video (T, H, W, 3)`` float in [0, 1] -> the same shape in [0, 1], augmented by ``draw`` (None: unchanged).
+
+    pixel_scale: (rows, columns) of ``video`` per pixel of the view's output size; the blur's sigma is scaled
+    by it, so frames of another resolution (the original-resolution crop) are blurred by the same amount of
+    the scene."""
+    if draw is None:
+        return video
+    x = video.permute(0, 3, 1, 2)  # (T, 3, H, W)
+    for op, factor in draw.jitter:
+        if op == 0:
+            x = x * factor
+        elif op == 1:
+            mean = _gray(x).mean()  # one mean over the whole clip keeps frames consistent
+            x = (x - mean) * factor + mean
+        elif op == 2:
+            g = _gray(x)
+            x = (x - g) * factor + g
+        else:
+            x = _rotate_hue(x, factor)
+        x = x.clamp(0.0, 1.0)
+    if draw.color_drop:
+        x = _gray(x).expand_as(x)
+    if draw.blur_sigma is not None:
+        x = _gaussian_blur(x, draw.blur_sigma * pixel_scale[0], draw.blur_sigma * pixel_scale[1])
+    return x.clamp(0.0, 1.0).permute(0, 2, 3, 1).contiguous()
+
+
 def photometric_augment(video: torch.Tensor, rng: np.random.Generator, config: AugmentConfig) -> torch.Tensor:
     """Colour jitter (one draw for the whole clip), colour drop and Gaussian blur.
 
     video: (T, H, W, 3) float in [0, 1] -> same shape, in [0, 1].
     """
-    if not config.enabled:
-        return video
-    x = video.permute(0, 3, 1, 2)  # (T, 3, H, W)
-    if rng.uniform() < config.jitter_prob:
-        for op in rng.permutation(4):
-            if op == 0:
-                x = x * rng.uniform(1 - config.brightness, 1 + config.brightness)
-            elif op == 1:
-                mean = _gray(x).mean()  # one mean over the whole clip keeps frames consistent
-                x = (x - mean) * rng.uniform(1 - config.contrast, 1 + config.contrast) + mean
-            elif op == 2:
-                g = _gray(x)
-                x = (x - g) * rng.uniform(1 - config.saturation, 1 + config.saturation) + g
-            else:
-                x = _rotate_hue(x, rng.uniform(-config.hue, config.hue))
-            x = x.clamp(0.0, 1.0)
-    if rng.uniform() < config.color_drop_prob:
-        x = _gray(x).expand_as(x)
-    if rng.uniform() < config.blur_prob:
-        x = _gaussian_blur(x, rng.uniform(*config.blur_sigma))
-    return x.clamp(0.0, 1.0).permute(0, 2, 3, 1).contiguous()
+    return apply_photometric(video, draw_photometric(rng, config))
+
+
+def augmented_view_frames(rgb: np.ndarray, view: View, rng: np.random.Generator, config: AugmentConfig,
+                          original: bool = False) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """The frames of ``view`` for training, photometrically augmented.
+
+    rgb: ``(T, H, W, 3)`` uint8 source frames. Returns ``video (T_view, h, w, 3)`` float in [0, 1] (cropped and
+    resized to the view's size) and, with ``original``, ``patch_video (T_view, h_crop, w_crop, 3)`` float in
+    [0, 1]: the same crop at the source resolution, not resized, with the same augmentation (one draw; the
+    blur's sigma scaled to its pixels). Why: a model with ``rgb_patch_source="original"`` cuts its query
+    patches from the input video's own pixels at inference, so training must give it those pixels; else None.
+    """
+    draw = draw_photometric(rng, config)
+    video = apply_photometric(torch.from_numpy(view_rgb(rgb, view)).float() / 255.0, draw)
+    if not original:
+        return video, None
+    x0, y0, w, h = view.crop
+    native = torch.from_numpy(np.ascontiguousarray(rgb[list(view.frames), y0:y0 + h, x0:x0 + w])).float() / 255.0
+    return video, apply_photometric(native, draw, (h / view.size[0], w / view.size[1]))
 
 
 def _gray(x: torch.Tensor) -> torch.Tensor:
@@ -153,16 +213,24 @@ def _rotate_hue(x: torch.Tensor, fraction: float) -> torch.Tensor:
     return torch.einsum("ij,tjhw->tihw", m, x)
 
 
-def _gaussian_blur(x: torch.Tensor, sigma: float) -> torch.Tensor:
-    """Separable Gaussian blur of (T, C, H, W) with a radius of ceil(3 sigma) pixels; borders replicate."""
+def _gaussian_kernel(sigma: float) -> list[float]:
+    """Normalised Gaussian weights over a radius of ceil(3 sigma) (at least 1) pixels."""
     radius = max(1, int(math.ceil(3 * sigma)))
     k = torch.exp(-(torch.arange(-radius, radius + 1, dtype=torch.float64) ** 2) / (2 * sigma**2))
-    k = (k / k.sum()).tolist()
+    return (k / k.sum()).tolist()
+
+
+def _gaussian_blur(x: torch.Tensor, sigma_rows: float, sigma_columns: float) -> torch.Tensor:
+    """Separable Gaussian blur of (T, C, H, W), sigmas in pixels along the rows and the columns; borders replicate."""
     t, c, h, w = x.shape
     # Weighted sums of shifted slices, one axis at a time: a one-channel conv2d was 5-10x slower on a
     # loader's single thread.
+    k = _gaussian_kernel(sigma_columns)
+    radius = len(k) // 2
     y = F.pad(x.reshape(t * c, 1, h, w), (radius, radius, 0, 0), mode="replicate")[:, 0]
     y = sum(weight * y[:, :, i:i + w] for i, weight in enumerate(k))
+    k = _gaussian_kernel(sigma_rows)
+    radius = len(k) // 2
     y = F.pad(y[:, None], (0, 0, radius, radius), mode="replicate")[:, 0]
     y = sum(weight * y[:, i:i + h] for i, weight in enumerate(k))
     return y.reshape(t, c, h, w)

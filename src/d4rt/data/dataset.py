@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from d4rt.data.augment import AugmentConfig, photometric_augment, sample_stride, sample_view
+from d4rt.data.augment import AugmentConfig, augmented_view_frames, sample_stride, sample_view
 from d4rt.data.sampler import QuerySampler, QuerySamplerConfig
 from d4rt.errors import UserError
 from d4rt.geometry.view import View
-from d4rt.synthetic.clip import Clip, load_clip, view_depth, view_rgb
+from d4rt.synthetic.clip import Clip, load_clip, view_depth
 from d4rt.synthetic.generate import render_clip
 
 TARGET_KEYS = ("points", "uv", "visibility", "motion", "normals")
@@ -98,7 +98,7 @@ class DatasetConfig:
 
 
 def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampler: QuerySampler,
-                         augment: AugmentConfig) -> dict:
+                         augment: AugmentConfig, patch_frames: bool = False) -> dict:
     """One training sample from ``clip`` seen through ``view``.
 
     Returns torch tensors: ``video (T,H,W,3) float32`` in [0, 1] (augmented), ``queries (N,5) float32``
@@ -106,7 +106,10 @@ def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampl
     ``motion (N,3)``, ``normals (N,3)`` (zeros where undefined), masks ``valid (N,)`` and
     ``uv_valid (N,)`` (bool), ``aspect_ratio ()`` (the crop's width / height in source pixels), the
     view's ``intrinsics (T,3,3)`` and ``cam_to_world (T,4,4)`` (float32), and ``depth (T,H,W) float32``, the
-    true z-depth of every sample pixel (0 where unknown; for ``loss.weight_dense_depth``).
+    true z-depth of every sample pixel (0 where unknown; for ``loss.weight_dense_depth``). With ``patch_frames``
+    also ``patch_video (T, h_crop, w_crop, 3) float32``, the view's crop at the clip's own resolution, augmented
+    alike, and ``patch_size (2,)`` long = (h_crop, w_crop): what a model with ``rgb_patch_source="original"`` cuts
+    its query patches from (:func:`d4rt.data.augment.augmented_view_frames`).
     """
     drawn = sampler.sample(clip, rng, view)
     answers = clip.oracle.query(drawn["source_queries"])  # exact: queries sit where the source is exact
@@ -122,8 +125,7 @@ def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampl
     }
     frames = list(view.frames)
     x0, y0, w, h = view.crop
-    rgb = view_rgb(clip.rgb, view)
-    video = photometric_augment(torch.from_numpy(rgb).float() / 255.0, rng, augment)
+    video, patch_video = augmented_view_frames(clip.rgb, view, rng, augment, original=patch_frames)
     sample = {k: torch.nan_to_num(v, nan=0.0).float() for k, v in targets.items()}
     sample.update(
         video=video,
@@ -135,14 +137,17 @@ def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampl
         cam_to_world=torch.from_numpy(clip.cam_to_world[frames]).float(),
         depth=torch.from_numpy(view_depth(clip.depth, view)),
     )
+    if patch_video is not None:
+        sample.update(patch_video=patch_video, patch_size=torch.tensor(patch_video.shape[1:3]))
     return sample
 
 
 class ClipQueryDataset(torch.utils.data.Dataset):
     """Map-style dataset of training samples; ``set_epoch`` changes the random draws per epoch."""
 
-    def __init__(self, config: DatasetConfig):
+    def __init__(self, config: DatasetConfig, patch_frames: bool = False):
         self.config = config
+        self.patch_frames = patch_frames  # also yield original-resolution frames (make_training_sample)
         config.augment.validate()
         if config.renders_on_gpu:  # checked here, not in the config: a GPU config may be read on any machine
             index = int(config.render_device.partition(":")[2] or 0)
@@ -198,7 +203,7 @@ class ClipQueryDataset(torch.utils.data.Dataset):
             rng = np.random.default_rng([cfg.seed, self.epoch, index, repeat])
         view = sample_view(rng, clip.num_frames, (clip.height, clip.width), frames, cfg.size, cfg.augment,
                            stride=stride)
-        return make_training_sample(clip, view, rng, self.sampler, cfg.augment)
+        return make_training_sample(clip, view, rng, self.sampler, cfg.augment, self.patch_frames)
 
     def _clip(self, key: tuple[int, int], make) -> Clip:
         """``make()``, or the clip it made for ``key`` last time when echoing (one clip kept per process)."""

@@ -29,12 +29,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from d4rt.data.augment import AugmentConfig, photometric_augment, sample_view
+from d4rt.data.augment import AugmentConfig, augmented_view_frames, sample_view
 from d4rt.errors import UserError
 from d4rt.geometry.camera import project
 from d4rt.geometry.transforms import apply_rotation, apply_transform, invert_rigid
 from d4rt.geometry.view import View
-from d4rt.synthetic.clip import view_rgb
 
 TRACK_ARRAYS = {"rgb": np.uint8, "intrinsics": np.float64, "cam_to_world": np.float64, "tracks": np.float64,
                 "visible": bool}
@@ -112,9 +111,9 @@ class TrackDatasetConfig:
 
 
 def track_training_sample(clip: TrackClip, view: View, rng: np.random.Generator, num_queries: int,
-                          tgt_equals_cam_prob: float, augment: AugmentConfig) -> dict:
+                          tgt_equals_cam_prob: float, augment: AugmentConfig, patch_frames: bool = False) -> dict:
     """One training sample of ``clip`` seen through ``view``, with the keys of
-    :func:`d4rt.data.make_training_sample` plus ``normals_valid (N,)`` (all False)."""
+    :func:`d4rt.data.make_training_sample` (``patch_frames`` as there) plus ``normals_valid (N,)`` (all False)."""
     frames = np.asarray(view.frames)
     height, width = clip.rgb.shape[1:3]
     k_src, c2w = clip.intrinsics[frames], clip.cam_to_world[frames]
@@ -150,12 +149,12 @@ def track_training_sample(clip: TrackClip, view: View, rng: np.random.Generator,
         "normals": np.zeros((n, 3)),
     }
     x0, y0, w, h = view.crop
-    rgb = view_rgb(clip.rgb, view)
+    video, patch_video = augmented_view_frames(clip.rgb, view, rng, augment, original=patch_frames)
     sample = {k: torch.from_numpy(np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)).float()
               for k, v in targets.items()}
     queries = np.concatenate([np.clip(uv_view[point, t_src], 0.0, 1.0), np.stack([t_src, t_tgt, t_cam], 1)], 1)
     sample.update(
-        video=photometric_augment(torch.from_numpy(rgb).float() / 255.0, rng, augment),
+        video=video,
         queries=torch.from_numpy(queries).float(),
         valid=torch.from_numpy(valid),
         uv_valid=torch.from_numpy(uv_valid),
@@ -164,15 +163,18 @@ def track_training_sample(clip: TrackClip, view: View, rng: np.random.Generator,
         intrinsics=torch.from_numpy(view.intrinsics(clip.intrinsics)).float(),
         cam_to_world=torch.from_numpy(c2w).float(),
     )
+    if patch_video is not None:
+        sample.update(patch_video=patch_video, patch_size=torch.tensor(patch_video.shape[1:3]))
     return sample
 
 
 class TrackQueryDataset(torch.utils.data.Dataset):
     """Map-style dataset of training samples from track clips; deterministic per (seed, epoch, index)."""
 
-    def __init__(self, config: TrackDatasetConfig):
+    def __init__(self, config: TrackDatasetConfig, patch_frames: bool = False):
         config.validate()
         self.config = config
+        self.patch_frames = patch_frames  # also yield original-resolution frames (track_training_sample)
         self.epoch = 0
         self.files = sorted(Path(config.directory).glob("*.npz"))
         if not self.files:
@@ -192,4 +194,5 @@ class TrackQueryDataset(torch.utils.data.Dataset):
             raise UserError(f"track clip {self.files[index]} has {clip.num_frames} frames, fewer than the "
                             f"{cfg.frames} asked for")
         view = sample_view(rng, clip.num_frames, clip.rgb.shape[1:3], cfg.frames, cfg.size, cfg.augment)
-        return track_training_sample(clip, view, rng, cfg.num_queries, cfg.tgt_equals_cam_prob, cfg.augment)
+        return track_training_sample(clip, view, rng, cfg.num_queries, cfg.tgt_equals_cam_prob, cfg.augment,
+                                     self.patch_frames)

@@ -82,12 +82,13 @@ class D4RT(nn.Module):
 
     def decode(self, queries: torch.Tensor, scene_kv: SceneKV, patch_video: torch.Tensor | None,
                share_sources: bool = False, attention_block: int | None = None,
-               tokens_per_step: int | None = None) -> dict[str, torch.Tensor]:
+               tokens_per_step: int | None = None, patch_sizes: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """Checked ``queries: (B, N, 5)`` + per-layer scene keys/values -> dict of ``(B, N, ...)``.
+        ``patch_sizes``: ``(B, 2)`` each clip's (h, w) in a padded ``patch_video`` (see :meth:`forward`);
         ``share_sources``: embed each run of equal (u, v, t_src) once (see :class:`QueryEmbedding`);
         ``attention_block``: see :meth:`QueryDecoder.forward`; ``tokens_per_step``: tubelet tokens per time step
         of the scene (rows x columns), needed with config ``target_frame_heads``."""
-        tokens = self.query_embedding(queries, patch_video, share_sources)
+        tokens = self.query_embedding(queries, patch_video, share_sources, patch_sizes)
         same_camera = queries[..., 2].round() == queries[..., 4].round() if self.config.relative_pose_head else None
         frame = None
         if self.config.target_frame_heads:
@@ -109,6 +110,7 @@ class D4RT(nn.Module):
         patch_video: torch.Tensor | None = None,
         check_inputs: bool = True,
         attention_block: int | None = None,
+        patch_sizes: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Batched training forward.
 
@@ -119,6 +121,9 @@ class D4RT(nn.Module):
             aspect_ratio: ``(B,)`` width / height of each clip's original frames.
             patch_video: ``(B, T, h, w, 3)`` frames to cut RGB patches from when
                 ``rgb_patch_source == "original"`` (required then); by default ``video`` itself.
+            patch_sizes: ``(B, 2)`` integer (h, w) of each clip's frames in ``patch_video`` when the clips differ
+                in size and each is padded at the bottom and right to the largest (what
+                :func:`d4rt.training.data.collate_samples` builds); None: every clip fills ``patch_video``.
             check_inputs: validate shapes and ranges (one pass over the inputs; False skips it).
             attention_block: also return where the queries look in that decoder block (below).
 
@@ -132,7 +137,8 @@ class D4RT(nn.Module):
             aspect-ratio token) and ``token_grid`` (4,) long: time steps, rows, columns, frames per time step.
         """
         if check_inputs:
-            video, queries, aspect_ratio, patch_video = self._check_batch(video, queries, aspect_ratio, patch_video)
+            video, queries, aspect_ratio, patch_video, patch_sizes = self._check_batch(
+                video, queries, aspect_ratio, patch_video, patch_sizes)
         if patch_video is None:
             if self.config.rgb_patch_source == "original" and self.config.rgb_patch_size > 0:
                 raise UserError("config rgb_patch_source='original' needs patch_video (the original frames)")
@@ -140,7 +146,7 @@ class D4RT(nn.Module):
         tokens = self.encode_tokens(video, aspect_ratio)
         per_step = (video.shape[2] // self.config.patch_size) * (video.shape[3] // self.config.patch_size)
         out = self.decode(queries, self.decoder.project_scene(tokens), patch_video, attention_block=attention_block,
-                          tokens_per_step=per_step)
+                          tokens_per_step=per_step, patch_sizes=patch_sizes)
         if attention_block is not None:
             k, p = self.config.tubelet_frames, self.config.patch_size
             out["token_grid"] = torch.tensor([-(-video.shape[1] // k), video.shape[2] // p, video.shape[3] // p, k],
@@ -149,7 +155,7 @@ class D4RT(nn.Module):
             out["dense_log_depth"] = self.dense_depth(tokens, *video.shape[1:4])
         return out
 
-    def _check_batch(self, video, queries, aspect_ratio, patch_video):
+    def _check_batch(self, video, queries, aspect_ratio, patch_video, patch_sizes=None):
         """The training inputs as checked tensors, or a :class:`UserError` naming the problem."""
         cfg = self.config
         device = next(self.parameters()).device
@@ -173,7 +179,16 @@ class D4RT(nn.Module):
             if patch_video.shape[:2] != (b, t):
                 raise UserError(f"patch_video must have the video's batch and frames {(b, t)}, "
                                 f"got {tuple(patch_video.shape[:2])}")
-        return video, queries, aspect_ratio, patch_video
+        if patch_sizes is not None:
+            if patch_video is None:
+                raise UserError("patch_sizes given without patch_video")
+            patch_sizes = as_tensor(patch_sizes, "patch_sizes")
+            limit, sizes = torch.tensor(patch_video.shape[2:4]), patch_sizes.cpu()
+            if (sizes.shape != (b, 2) or sizes.dtype not in (torch.int32, torch.int64)
+                    or not bool(((sizes >= 1) & (sizes <= limit)).all())):
+                raise UserError(f"patch_sizes must be ({b}, 2) integer (h, w) within patch_video's "
+                                f"{tuple(limit.tolist())}, got {tuple(patch_sizes.shape)} {patch_sizes.dtype}")
+        return video, queries, aspect_ratio, patch_video, patch_sizes
 
     # ------------------------------------------------------------------------------------ inference
     @torch.no_grad()

@@ -26,6 +26,7 @@ def sample_rgb_patches(
     size: int,
     mean: torch.Tensor,
     std: torch.Tensor,
+    sizes: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Bilinear, sub-pixel ``size x size`` RGB patches centred at (u, v), normalised.
 
@@ -36,14 +37,22 @@ def sample_rgb_patches(
         frame: ``(B, N)`` integer frame index into T of each query.
         size: patch side in pixels of ``video``; samples are 1 pixel apart, centred on (u, v).
         mean, std: ``(3,)`` pixel normalisation applied to each sample.
+        sizes: ``(B, 2)`` integer (h, w) of each clip's frames when ``video`` holds clips of different sizes,
+            each padded (at the bottom and right) to the batch's largest; pixels beyond a clip's own size are
+            outside its image. None: every clip fills ``video``.
 
     Returns:
         ``(B, N, size, size, 3)`` float32: ``(pixel - mean) / std``, rows top to bottom. Samples that
         fall outside the image read as 0 (the mean colour); bilinear weights of outside neighbours are
         dropped, not renormalised, so an edge fades to the mean colour.
     """
-    b, t, h, w, _ = video.shape
+    b, t, height, width, _ = video.shape
     device = video.device
+    if sizes is None:
+        h, w = height, width
+    else:  # each clip's own size, (B, 1) to broadcast over its queries
+        sizes = sizes.to(device)
+        h, w = sizes[:, :1], sizes[:, 1:]
     # Samples are whole pixels apart, so every sample of a patch has the same sub-pixel offset: gather
     # one (size + 1)^2 window per query and blend its four shifted copies with two scalar weights
     # (a third of the reads of blending each sample's own four neighbours).
@@ -54,13 +63,21 @@ def sample_rgb_patches(
     steps = torch.arange(size + 1, device=device)
     cols = x0.long()[..., None] + steps  # (B, N, size + 1)
     rows = y0.long()[..., None] + steps
-    base = (torch.arange(b, device=device)[:, None] * t + frame.long()) * (h * w)  # (B, N)
-    row_start = base[..., None] + rows.clamp(0, h - 1) * w  # (B, N, size + 1)
-    index = row_start[..., :, None] + cols.clamp(0, w - 1)[..., None, :]  # (B, N, size + 1, size + 1)
-    window = video.reshape(b * t * h * w, 3).index_select(0, index.reshape(-1)).reshape(*index.shape, 3).float()
+    if sizes is None:
+        inside_rows, inside_cols = (rows >= 0) & (rows < h), (cols >= 0) & (cols < w)
+        rows, cols = rows.clamp(0, h - 1), cols.clamp(0, w - 1)
+    else:
+        h, w = h[..., None], w[..., None]  # (B, 1, 1)
+        inside_rows, inside_cols = (rows >= 0) & (rows < h), (cols >= 0) & (cols < w)
+        rows, cols = torch.minimum(rows.clamp(min=0), h - 1), torch.minimum(cols.clamp(min=0), w - 1)
+    base = (torch.arange(b, device=device)[:, None] * t + frame.long()) * (height * width)  # (B, N)
+    row_start = base[..., None] + rows * width  # (B, N, size + 1)
+    index = row_start[..., :, None] + cols[..., None, :]  # (B, N, size + 1, size + 1)
+    window = video.reshape(b * t * height * width, 3).index_select(0, index.reshape(-1)).reshape(*index.shape, 3)
+    window = window.float()
     scale = 255.0 if video.dtype == torch.uint8 else 1.0
     mean, std = mean.to(device, torch.float32), std.to(device, torch.float32)
-    inside = ((rows >= 0) & (rows < h))[..., :, None] & ((cols >= 0) & (cols < w))[..., None, :]
+    inside = inside_rows[..., :, None] & inside_cols[..., None, :]
     if device.type != "cpu" or not bool(inside.all()):  # (a host sync is cheap on the CPU only)
         # Outside the image: the mean colour, which normalises to 0. Blending before normalising is the
         # same affine map, with one pass over the smaller blended patch instead of three over the window.
@@ -97,9 +114,11 @@ class QueryEmbedding(nn.Module):
         p = config.rgb_patch_size
         self.patch_proj = nn.Linear(3 * p * p, dim) if p > 0 else None
 
-    def source_tokens(self, queries: torch.Tensor, patch_video: torch.Tensor | None) -> torch.Tensor:
+    def source_tokens(self, queries: torch.Tensor, patch_video: torch.Tensor | None,
+                      patch_sizes: torch.Tensor | None = None) -> torch.Tensor:
         """The part of the token that depends on (u, v, t_src) only: ``Fourier(u, v) + E_src[t_src] +
-        RGB-patch(u, v, t_src)``. ``queries: (B, N, >= 3)`` -> ``(B, N, decoder_dim)``."""
+        RGB-patch(u, v, t_src)``. ``queries: (B, N, >= 3)`` -> ``(B, N, decoder_dim)``; ``patch_sizes (B, 2)``:
+        each clip's (h, w) in a padded ``patch_video`` (:func:`sample_rgb_patches` ``sizes``)."""
         uv = queries[..., :2]
         t_src = queries[..., 2].round().long()
         # Features in float32 (phase precision), then the projection's own dtype (bf16 for a bf16 model).
@@ -109,7 +128,7 @@ class QueryEmbedding(nn.Module):
             if patch_video is None:
                 raise ValueError("rgb_patch_size > 0 needs the video to cut patches from")
             patch = sample_rgb_patches(patch_video, uv, t_src, self.config.rgb_patch_size,
-                                       self.pixel_mean, self.pixel_std)
+                                       self.pixel_mean, self.pixel_std, patch_sizes)
             token = token + self.patch_proj(patch.flatten(-3).to(self.patch_proj.weight.dtype))
         return token
 
@@ -119,7 +138,7 @@ class QueryEmbedding(nn.Module):
         return self.time_tgt(queries[..., 3].round().long()) + self.time_cam(queries[..., 4].round().long())
 
     def forward(self, queries: torch.Tensor, patch_video: torch.Tensor | None,
-                share_sources: bool = False) -> torch.Tensor:
+                share_sources: bool = False, patch_sizes: torch.Tensor | None = None) -> torch.Tensor:
         """Query tokens ``(B, N, decoder_dim)`` = source part + time part.
 
         ``share_sources``: consecutive queries with the same (u, v, t_src) (a track's queries, which differ
@@ -128,12 +147,13 @@ class QueryEmbedding(nn.Module):
         out source-major, as every recipe does, share fully; the answers equal the unshared ones.
         """
         if share_sources:
-            shared = self._shared_source_tokens(queries, patch_video)
+            shared = self._shared_source_tokens(queries, patch_video, patch_sizes)
             if shared is not None:
                 return shared + self.time_tokens(queries)
-        return self.source_tokens(queries, patch_video) + self.time_tokens(queries)
+        return self.source_tokens(queries, patch_video, patch_sizes) + self.time_tokens(queries)
 
-    def _shared_source_tokens(self, queries: torch.Tensor, patch_video: torch.Tensor | None) -> torch.Tensor | None:
+    def _shared_source_tokens(self, queries: torch.Tensor, patch_video: torch.Tensor | None,
+                              patch_sizes: torch.Tensor | None) -> torch.Tensor | None:
         """Source part computed once per run of equal (u, v, t_src), or None when no run has two queries."""
         b, n, _ = queries.shape
         if n < 2:
@@ -148,9 +168,11 @@ class QueryEmbedding(nn.Module):
         first = starts.nonzero().squeeze(-1)  # (runs,) index of each run's first query
         run_of = torch.cumsum(starts, 0) - 1  # (B * N,) the run each query belongs to
         if b == 1:
-            tokens = self.source_tokens(flat[first][None], patch_video)[0]
+            tokens = self.source_tokens(flat[first][None], patch_video, patch_sizes)[0]
         else:  # each clip's runs against its own frames
             clip = first // n
-            tokens = torch.cat([self.source_tokens(flat[first[clip == i]][None], patch_video[i:i + 1]
-                                                   if patch_video is not None else None)[0] for i in range(b)])
+            tokens = torch.cat([self.source_tokens(flat[first[clip == i]][None],
+                                                   None if patch_video is None else patch_video[i:i + 1],
+                                                   None if patch_sizes is None else patch_sizes[i:i + 1])[0]
+                                for i in range(b)])
         return tokens[run_of].reshape(b, n, -1)

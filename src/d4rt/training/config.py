@@ -82,13 +82,15 @@ class DataSpec:
     def num_queries(self) -> int:
         return self.tracks.num_queries if self.tracks else self.dataset.sampler.num_queries
 
-    def build_dataset(self, device: str | None = None) -> ClipQueryDataset | TrackQueryDataset:
+    def build_dataset(self, device: str | None = None, patch_frames: bool = False
+                      ) -> ClipQueryDataset | TrackQueryDataset:
         """The training dataset. ``device``: the process's torch device; a ``render_device`` of plain "cuda" becomes
-        it, so that under torchrun each rank renders on its own GPU."""
+        it, so that under torchrun each rank renders on its own GPU. ``patch_frames``: samples also carry the
+        original-resolution frames (for a model whose config ``patches_from_original``)."""
         dataset = self.dataset
         if dataset.render_device == "cuda" and device is not None and device.startswith("cuda"):
             dataset = dataclasses.replace(dataset, render_device=device)
-        return build_dataset(dataset, self.tracks)
+        return build_dataset(dataset, self.tracks, patch_frames)
 
 
 @dataclass
@@ -252,9 +254,6 @@ class TrainConfig:
         unknown_tasks = sorted(set(val.tasks) - set(EVALUATION_TASKS))
         if unknown_tasks:
             raise UserError(f"validation.tasks: unknown {unknown_tasks}; choose from {list(EVALUATION_TASKS)}")
-        if model.rgb_patch_source == "original" and model.rgb_patch_size > 0:
-            raise UserError("training with rgb_patch_source='original' is not supported: the dataset yields "
-                            "encoder-resolution frames only")
         return model
 
     # ------------------------------------------------------------------------------------- (de)serialise

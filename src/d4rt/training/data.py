@@ -18,7 +18,10 @@ from collections.abc import Iterator
 
 import numpy as np
 import torch
+import torch.nn.functional as F
+from torch.utils.data import default_collate
 
+from d4rt.config import D4RTConfig
 from d4rt.training.stop import defer_stop_signals
 
 
@@ -90,6 +93,28 @@ def init_worker(worker_id: int) -> None:
     seed_worker(worker_id)
 
 
+def collate_samples(samples: list[dict]) -> dict:
+    """Stack sample dicts into a batch. Original-resolution frames (``patch_video``, whose crops differ in size
+    from clip to clip) are padded with zeros at the bottom and right to the batch's largest; each clip's own
+    (h, w) stays in ``patch_size`` (B, 2), which the patch sampler reads (:func:`model_inputs`)."""
+    if "patch_video" in samples[0]:
+        height = max(s["patch_video"].shape[1] for s in samples)
+        width = max(s["patch_video"].shape[2] for s in samples)
+        samples = [s | {"patch_video": F.pad(s["patch_video"], (0, 0, 0, width - s["patch_video"].shape[2],
+                                                                  0, height - s["patch_video"].shape[1]))}
+                   for s in samples]
+    return default_collate(samples)
+
+
+def model_inputs(config: D4RTConfig, batch: dict) -> dict:
+    """The inputs of :meth:`d4rt.model.D4RT.forward` beyond video, queries and aspect ratio that a model with
+    ``config`` takes from a batch: ``patch_video`` and ``patch_sizes`` when it cuts its RGB patches from the
+    original-resolution frames (the forward pass says so in one line if the batch lacks them), else none."""
+    if not config.patches_from_original or "patch_video" not in batch:
+        return {}
+    return {"patch_video": batch["patch_video"], "patch_sizes": batch["patch_size"]}
+
+
 def training_loader(dataset: torch.utils.data.Dataset, stream: SampleStream, workers: int, seed: int, rank: int,
                     pin_memory: bool, spawn: bool = False) -> torch.utils.data.DataLoader:
     """A DataLoader over ``stream`` with ``workers`` processes; batches are dicts of stacked tensors.
@@ -101,5 +126,6 @@ def training_loader(dataset: torch.utils.data.Dataset, stream: SampleStream, wor
     context = torch.multiprocessing.get_context("spawn") if spawn and workers else None
     return torch.utils.data.DataLoader(
         EpochIndexedDataset(dataset), batch_sampler=stream, num_workers=workers, pin_memory=pin_memory,
+        collate_fn=collate_samples,
         worker_init_fn=init_worker, generator=generator, persistent_workers=False,
         prefetch_factor=2 if workers else None, multiprocessing_context=context)

@@ -44,7 +44,7 @@ from d4rt.model import D4RT
 from d4rt.model.weights import ADDABLE_PARTS, CONFIG_NAME, WEIGHTS_NAME, check_state_dict
 from d4rt.training import checkpoint as ckpt
 from d4rt.training.config import TrainConfig
-from d4rt.training.data import SampleStream, training_loader
+from d4rt.training.data import SampleStream, model_inputs, training_loader
 from d4rt.training.distributed import (
     DistributedContext,
     gradient_sync,
@@ -134,12 +134,14 @@ class Trainer:
             had_residual, wants_residual = pretrained.config.uv_residual, self.model_config.uv_residual
             # The differences allowed: adding a part of ADDABLE_PARTS (the relative-pose head, the dense depth head),
             # turning the 2D head residual and restricting more heads to the target frame (never undoing any). The
-            # camera pairing and flip averaging are inference defaults, not architecture: the new model keeps its own.
+            # camera pairing and flip averaging are inference defaults, and the frames RGB patches are cut from an
+            # input choice, not architecture: the new model keeps its own.
             wanted = {flag: getattr(self.model_config, flag) for flag in ADDABLE_PARTS}
             dropped = any(getattr(pretrained.config, flag) > wants for flag, wants in wanted.items())
             frame_heads = self.model_config.target_frame_heads
             same = pretrained.config.replace(uv_residual=wants_residual, pose_pairs=self.model_config.pose_pairs,
                                              flip_average=self.model_config.flip_average,
+                                             rgb_patch_source=self.model_config.rgb_patch_source,
                                              target_frame_heads=frame_heads, **wanted)
             if (same != self.model_config or dropped or had_residual > wants_residual
                     or pretrained.config.target_frame_heads > frame_heads):
@@ -222,7 +224,7 @@ class Trainer:
             _truncate_metrics(self.out / "metrics.jsonl", step)
 
         data, run = cfg.data, cfg.run
-        dataset = data.build_dataset(str(context.device))
+        dataset = data.build_dataset(str(context.device), patch_frames=self.model_config.patches_from_original)
         stream = SampleStream(len(dataset), run.seed, next_sample, data.batch_size, run.grad_accum, context.rank,
                               context.world_size, echo=data.dataset.echo if data.tracks is None else 1)
         loader = training_loader(dataset, stream, data.workers, run.seed, context.rank,
@@ -250,7 +252,7 @@ class Trainer:
                         with gradient_sync(model, micro == run.grad_accum - 1):
                             with self.autocast:
                                 out = model(batch["video"], batch["queries"], batch["aspect_ratio"],
-                                            attention_block=cfg.loss.attention_block)
+                                            attention_block=cfg.loss.attention_block, **model_inputs(self.model_config, batch))
                             loss, terms = d4rt_loss(out, batch, cfg.loss)
                             (loss / run.grad_accum).backward()
                         for key, value in terms.items():

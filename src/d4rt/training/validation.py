@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from d4rt.data import AugmentConfig, QuerySampler, QuerySamplerConfig, make_training_sample
+from d4rt.training.data import model_inputs
 from d4rt.errors import UserError
 from d4rt.evaluation.benchmarks import Benchmark
 from d4rt.evaluation.harness import aggregate, evaluate_sequence
@@ -82,11 +83,12 @@ class Validator:
         for index, clip in enumerate(self.clips):
             view = View((clip.height, clip.width), (0, 0, clip.width, clip.height), size, tuple(range(clip.num_frames)))
             rng = np.random.default_rng([self.config.seed, index])
-            sample = make_training_sample(clip, view, rng, self.sampler, AugmentConfig(enabled=False))
+            sample = make_training_sample(clip, view, rng, self.sampler, AugmentConfig(enabled=False),
+                                          patch_frames=model.config.patches_from_original)
             batch = {k: v[None].to(device) for k, v in sample.items()}
             with autocast:
                 out = model(batch["video"], batch["queries"], batch["aspect_ratio"],
-                            attention_block=self.loss.attention_block)
+                            attention_block=self.loss.attention_block, **model_inputs(model.config, batch))
             for key, value in d4rt_loss(out, batch, self.loss)[1].items():
                 losses.setdefault(key, []).append(float(value))
             sequence = sequence_from_clip(clip, f"clip_{index}", self.config.track_points, self.config.seed + index)
