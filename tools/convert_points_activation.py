@@ -33,6 +33,7 @@ from d4rt.errors import UserError  # noqa: E402
 from d4rt.model import D4RT  # noqa: E402
 from d4rt.model.decoder import exp_distance  # noqa: E402
 from d4rt.training.config import TrainConfig  # noqa: E402
+from d4rt.training.data import model_inputs  # noqa: E402
 
 FIT_SEED = 13_000_000
 
@@ -53,7 +54,8 @@ def head_features(model: D4RT, samples: list[dict[str, torch.Tensor]]) -> tuple[
     try:
         model.eval()
         for sample in samples:
-            model(sample["video"][None], sample["queries"][None], sample["aspect_ratio"][None])
+            batch = {k: v[None] for k, v in sample.items()}
+            model(batch["video"], batch["queries"], batch["aspect_ratio"], **model_inputs(model.config, batch))
     finally:
         hook.remove()
     x = torch.cat([c.reshape(-1, c.shape[-1]) for c in captured]).float()

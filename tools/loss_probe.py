@@ -12,7 +12,9 @@ a lower loss is necessary for a better model, not proof of one.
 The samples are ``config``'s training dataset (the same clip lengths, sizes, scene options, augmentation and query
 sampler) with its seed replaced by 6,000,000 (a stream no training stage, probe or benchmark draws), its first
 ``--samples`` indices, each with ``--queries`` queries (the same for every checkpoint, whatever a run trained
-with). Every checkpoint answers them in fp32 without gradients; the terms are ``d4rt_loss``'s under the config's
+with; with a config whose model cuts its RGB patches from the original-resolution frames the samples carry those
+too, and each checkpoint cuts its patches where its own config says). Every checkpoint answers them in fp32 without
+gradients; the terms are ``d4rt_loss``'s under the config's
 loss settings (``3d`` is the paper's L3D), plus ``motion_terms``' (``2d_moved``, ``2d_still``, ``2d_slope``: does the
 model find a pixel in another frame?) and ``query_kind_terms``' (L3D over each kind of query: where the error is).
 

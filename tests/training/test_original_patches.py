@@ -12,6 +12,7 @@ import torch.nn.functional as F
 from d4rt.config import D4RTConfig
 from d4rt.data import AugmentConfig, ClipQueryDataset, DatasetConfig, QuerySampler, QuerySamplerConfig
 from d4rt.data import make_training_sample
+from d4rt.data.augment import _gaussian_blur
 from d4rt.errors import UserError
 from d4rt.geometry.view import View
 from d4rt.model import D4RT
@@ -43,8 +44,7 @@ def sample(clip, augment: AugmentConfig, patch_frames: bool, seed: int = 0) -> d
 def test_patch_frames_are_the_views_crop_at_the_clips_own_resolution(clip):
     plain = sample(clip, AugmentConfig(enabled=False), False)
     with_patches = sample(clip, AugmentConfig(enabled=False), True)
-    expected = torch.from_numpy(clip.rgb[[1, 2, 3], 4:34, 10:46]).float() / 255.0
-    assert torch.equal(with_patches["patch_video"], expected)
+    assert torch.equal(with_patches["patch_video"], torch.from_numpy(clip.rgb[[1, 2, 3], 4:34, 10:46]))
     assert with_patches["patch_size"].tolist() == [30, 36]
     assert torch.equal(with_patches["video"], torch.from_numpy(view_rgb(clip.rgb, crop_view(clip))).float() / 255.0)
     # Asking for the frames changes nothing else: the same video, queries and targets from the same draws.
@@ -60,13 +60,22 @@ def test_augmented_patch_frames_see_the_same_augmentation(clip):
         assert all(torch.equal(plain[k], s[k]) for k in plain)  # the encoder's frames are drawn as before
         # The original-resolution crop, augmented with the same draw and a blur of the same width in the scene,
         # then brought to the view's size, is the view's augmented video up to resampling.
-        down = F.interpolate(s["patch_video"].permute(0, 3, 1, 2), size=(16, 16), mode="bilinear",
+        patch_video = s["patch_video"].float() / 255.0
+        down = F.interpolate(patch_video.permute(0, 3, 1, 2), size=(16, 16), mode="bilinear",
                              align_corners=False, antialias=True).permute(0, 2, 3, 1)
-        unaugmented = sample(clip, AugmentConfig(enabled=False), True, seed)["patch_video"]
+        unaugmented = sample(clip, AugmentConfig(enabled=False), True, seed)["patch_video"].float() / 255.0
         assert (down - s["video"]).abs().mean() < 0.005  # 0.02-0.025 with the blur's sigma left unscaled
-        assert (s["patch_video"] - unaugmented).abs().mean() > 0.02  # it was augmented
+        assert (patch_video - unaugmented).abs().mean() > 0.02  # it was augmented
     grey = sample(clip, AugmentConfig(jitter_prob=0.0, color_drop_prob=1.0, blur_prob=0.0), True)
     assert torch.equal(grey["patch_video"][..., 0], grey["patch_video"][..., 2])
+
+
+def test_the_blur_of_finer_frames_is_scaled_along_each_axis():
+    impulse = torch.zeros(1, 1, 15, 15)
+    impulse[..., 7, 7] = 1.0
+    blurred = _gaussian_blur(impulse, 2.0, 0.3)[0, 0]  # wide down the rows, narrow along the columns
+    assert blurred[7].sum() < 0.25 and blurred[:, 7].sum() > 0.95
+    assert torch.allclose(blurred.sum(), torch.tensor(1.0))
 
 
 def test_padded_clips_give_each_clip_its_own_patches():
@@ -78,6 +87,16 @@ def test_padded_clips_give_each_clip_its_own_patches():
     both = sample_rgb_patches(padded, uv, frame, 5, MEAN, STD, torch.tensor([[7, 9], [12, 10]]))
     assert torch.equal(both[:1], sample_rgb_patches(small, uv[:1], frame[:1], 5, MEAN, STD))
     assert torch.equal(both[1:], sample_rgb_patches(large, uv[1:], frame[1:], 5, MEAN, STD))
+    # The query embedding's shared-source path (runs of equal (u, v, t_src)) reads each clip within its own size too.
+    model = original_model()
+    queries = torch.tensor([[0.9, 0.95, 1.0, 0.0, 0.0], [0.9, 0.95, 1.0, 1.0, 1.0], [0.1, 0.2, 0.0, 1.0, 0.0]])
+    queries = queries.expand(2, -1, -1)
+    sizes = torch.tensor([[7, 9], [12, 10]])
+    with torch.no_grad():
+        shared = model.query_embedding(queries, padded, True, sizes)
+        alone = torch.cat([model.query_embedding(queries[:1], small, False),
+                           model.query_embedding(queries[1:], large, False)])
+    torch.testing.assert_close(shared, alone)
 
 
 def original_model() -> D4RT:

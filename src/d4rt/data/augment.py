@@ -181,9 +181,10 @@ def augmented_view_frames(rgb: np.ndarray, view: View, rng: np.random.Generator,
     """The frames of ``view`` for training, photometrically augmented.
 
     rgb: ``(T, H, W, 3)`` uint8 source frames. Returns ``video (T_view, h, w, 3)`` float in [0, 1] (cropped and
-    resized to the view's size) and, with ``original``, ``patch_video (T_view, h_crop, w_crop, 3)`` float in
-    [0, 1]: the same crop at the source resolution, not resized, with the same augmentation (one draw; the
-    blur's sigma scaled to its pixels). Why: a model with ``rgb_patch_source="original"`` cuts its query
+    resized to the view's size) and, with ``original``, ``patch_video (T_view, h_crop, w_crop, 3)`` uint8: the same
+    crop at the source resolution, not resized, with the same augmentation (one draw; the blur's sigma scaled to its
+    pixels), rounded back to 0..255 (a quarter of float32's memory for frames of any size; the patch sampler reads
+    uint8). Why: a model with ``rgb_patch_source="original"`` cuts its query
     patches from the input video's own pixels at inference, so training must give it those pixels; else None.
     """
     draw = draw_photometric(rng, config)
@@ -192,7 +193,8 @@ def augmented_view_frames(rgb: np.ndarray, view: View, rng: np.random.Generator,
         return video, None
     x0, y0, w, h = view.crop
     native = torch.from_numpy(np.ascontiguousarray(rgb[list(view.frames), y0:y0 + h, x0:x0 + w])).float() / 255.0
-    return video, apply_photometric(native, draw, (h / view.size[0], w / view.size[1]))
+    patch_video = apply_photometric(native, draw, (h / view.size[0], w / view.size[1]))
+    return video, (patch_video * 255.0).round().to(torch.uint8)
 
 
 def _gray(x: torch.Tensor) -> torch.Tensor:

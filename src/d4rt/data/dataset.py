@@ -107,7 +107,7 @@ def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampl
     ``uv_valid (N,)`` (bool), ``aspect_ratio ()`` (the crop's width / height in source pixels), the
     view's ``intrinsics (T,3,3)`` and ``cam_to_world (T,4,4)`` (float32), and ``depth (T,H,W) float32``, the
     true z-depth of every sample pixel (0 where unknown; for ``loss.weight_dense_depth``). With ``patch_frames``
-    also ``patch_video (T, h_crop, w_crop, 3) float32``, the view's crop at the clip's own resolution, augmented
+    also ``patch_video (T, h_crop, w_crop, 3) uint8``, the view's crop at the clip's own resolution, augmented
     alike, and ``patch_size (2,)`` long = (h_crop, w_crop): what a model with ``rgb_patch_source="original"`` cuts
     its query patches from (:func:`d4rt.data.augment.augmented_view_frames`).
     """

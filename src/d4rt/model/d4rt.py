@@ -159,7 +159,8 @@ class D4RT(nn.Module):
         """The training inputs as checked tensors, or a :class:`UserError` naming the problem."""
         cfg = self.config
         device = next(self.parameters()).device
-        for name, value in (("video", video), ("queries", queries), ("patch_video", patch_video)):
+        for name, value in (("video", video), ("queries", queries), ("patch_video", patch_video),
+                            ("patch_sizes", patch_sizes)):
             where = None if value is None else as_tensor(value, name).device
             if where is not None and where != device:
                 raise UserError(f"{name} is on {where} but the model is on {device}; move the batch first")
@@ -187,7 +188,7 @@ class D4RT(nn.Module):
             if (sizes.shape != (b, 2) or sizes.dtype not in (torch.int32, torch.int64)
                     or not bool(((sizes >= 1) & (sizes <= limit)).all())):
                 raise UserError(f"patch_sizes must be ({b}, 2) integer (h, w) within patch_video's "
-                                f"{tuple(limit.tolist())}, got {tuple(patch_sizes.shape)} {patch_sizes.dtype}")
+                                f"{tuple(limit.tolist())}, got {sizes.tolist()} ({sizes.dtype})")
         return video, queries, aspect_ratio, patch_video, patch_sizes
 
     # ------------------------------------------------------------------------------------ inference

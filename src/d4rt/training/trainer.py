@@ -252,7 +252,8 @@ class Trainer:
                         with gradient_sync(model, micro == run.grad_accum - 1):
                             with self.autocast:
                                 out = model(batch["video"], batch["queries"], batch["aspect_ratio"],
-                                            attention_block=cfg.loss.attention_block, **model_inputs(self.model_config, batch))
+                                            attention_block=cfg.loss.attention_block,
+                                            **model_inputs(self.model_config, batch))
                             loss, terms = d4rt_loss(out, batch, cfg.loss)
                             (loss / run.grad_accum).backward()
                         for key, value in terms.items():

@@ -21,7 +21,6 @@ import numpy as np
 import torch
 
 from d4rt.data import AugmentConfig, QuerySampler, QuerySamplerConfig, make_training_sample
-from d4rt.training.data import model_inputs
 from d4rt.errors import UserError
 from d4rt.evaluation.benchmarks import Benchmark
 from d4rt.evaluation.harness import aggregate, evaluate_sequence
@@ -32,6 +31,7 @@ from d4rt.model import D4RT
 from d4rt.reconstruction import Reconstruction
 from d4rt.synthetic import Clip, load_clip, render_clip
 from d4rt.training.config import ValidationConfig
+from d4rt.training.data import model_inputs
 from d4rt.training.losses import LossConfig, d4rt_loss
 
 
