@@ -184,8 +184,8 @@ def augmented_view_frames(rgb: np.ndarray, view: View, rng: np.random.Generator,
     resized to the view's size) and, with ``original``, ``patch_video (T_view, h_crop, w_crop, 3)`` uint8: the same
     crop at the source resolution, not resized, with the same augmentation (one draw; the blur's sigma scaled to its
     pixels), rounded back to 0..255 (a quarter of float32's memory for frames of any size; the patch sampler reads
-    uint8). Why: a model with ``rgb_patch_source="original"`` cuts its query
-    patches from the input video's own pixels at inference, so training must give it those pixels; else None.
+    uint8); else None. Why: a model with ``rgb_patch_source="original"`` cuts its query patches from the input
+    video's own pixels at inference, so training must give it those pixels.
     """
     draw = draw_photometric(rng, config)
     video = apply_photometric(torch.from_numpy(view_rgb(rgb, view)).float() / 255.0, draw)
@@ -223,7 +223,8 @@ def _gaussian_kernel(sigma: float) -> list[float]:
 
 
 def _gaussian_blur(x: torch.Tensor, sigma_rows: float, sigma_columns: float) -> torch.Tensor:
-    """Separable Gaussian blur of (T, C, H, W), sigmas in pixels along the rows and the columns; borders replicate."""
+    """Separable Gaussian blur of (T, C, H, W); ``sigma_rows`` spreads vertically (across rows), ``sigma_columns``
+    horizontally, both in pixels; borders replicate."""
     t, c, h, w = x.shape
     # Weighted sums of shifted slices, one axis at a time: a one-channel conv2d was 5-10x slower on a
     # loader's single thread.
