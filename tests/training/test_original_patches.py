@@ -129,8 +129,10 @@ def test_forward_refuses_bad_patch_sizes():
     model = original_model()
     video, queries = torch.rand(1, 2, 32, 32, 3), torch.tensor([[[0.5, 0.5, 0.0, 1.0, 1.0]]])
     patch_video, aspect = torch.rand(1, 2, 40, 48, 3), torch.tensor([1.2])
-    for sizes, message in ((torch.tensor([[41, 48]]), "within patch_video"), (torch.tensor([40, 48]), r"\(1, 2\)"),
-                           (torch.tensor([[40.0, 48.0]]), "integer")):
+    # The message names the rule and the offending sizes.
+    for sizes, message in ((torch.tensor([[41, 48]]), r"within patch_video's \(40, 48\), got \[\[41, 48\]\]"),
+                           (torch.tensor([40, 48]), r"must be \(1, 2\).*got \[40, 48\]"),
+                           (torch.tensor([[40.0, 48.0]]), r"integer.*\(torch.float32\)")):
         with pytest.raises(UserError, match=message):
             model(video, queries, aspect, patch_video=patch_video, patch_sizes=sizes)
     with pytest.raises(UserError, match="without patch_video"):

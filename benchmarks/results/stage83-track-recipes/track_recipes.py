@@ -11,6 +11,9 @@ Recipes, for a track of pixel (u, v) of frame s, at frame k (frame "camera": the
 Visibility is the paper query's (probability > 0.5); "+gate" also calls hidden a point whose 3D position projects
 outside the image through the model's own intrinsics (or lies behind the camera). Scored with the harness's
 TAPVid-3D metrics (the benchmark's track scaling), per clip; means over clips and the paired bootstrap against paper.
+Two bounds on where the paper recipe's APD3D is lost: "paper 2D only", its points moved along their own rays to the
+true depth (TAPVid-3D's reproduce_2d scaling: only the 2D position is the model's), and "paper depth only", the true
+points moved along their true rays to the model's depth (only the depth is the model's).
 """
 import argparse
 import sys
