@@ -332,3 +332,30 @@ def test_echo_draws_several_samples_from_one_render(monkeypatch):
         echoed.sample(2, 3)
     with pytest.raises(UserError, match="echo must be a positive integer"):
         DatasetConfig(echo=0)
+
+
+def test_camera_pair_twins_are_the_pairs_pixel_in_its_own_camera_and_rigidly_related():
+    cfg = DatasetConfig(num_clips=2, frames=6, size=(32, 32), render_pixels=32 * 32,
+                        sampler=QuerySamplerConfig(num_queries=300, adjacent_camera_fraction=0.3,
+                                                   camera_pair_twins=True))
+    sample = ClipQueryDataset(cfg)[0]
+    q, twin, points = sample["queries"].double(), sample["twin"], sample["points"].double()
+    pairs = torch.nonzero(twin >= 0)[:, 0]
+    assert 50 < len(pairs) < 130 and (twin >= 0).sum() == len(set(twin[pairs].tolist()))  # one twin each
+    mates = twin[pairs]
+    assert not (twin[mates] >= 0).any()  # a twin is not itself a pair
+    assert torch.equal(q[pairs, :3], q[mates, :3]) and (q[pairs, 3] == q[pairs, 2]).all()
+    assert ((q[pairs, 4] - q[pairs, 2]).abs() == 1).all() and (q[mates, 4] == q[mates, 2]).all()
+    assert (q[mates, 3] == q[mates, 2]).all()
+    # The same surface point at the same time in two cameras: P_pair = R P_twin + t, exactly (float32 targets).
+    ok = sample["valid"][pairs] & sample["valid"][mates]
+    c2w = sample["cam_to_world"].double()
+    src, cam = q[pairs, 2].long(), q[pairs, 4].long()
+    relative = torch.linalg.inv(c2w[cam]) @ c2w[src]
+    moved = (relative[:, :3, :3] @ points[mates][..., None])[..., 0] + relative[:, :3, 3]
+    assert ok.sum() > 30 and (moved - points[pairs])[ok].abs().max() < 1e-4
+    # Off by default: the paper's stream has no twins; twins without pairs are refused.
+    assert "twin" not in ClipQueryDataset(DatasetConfig(num_clips=1, frames=3, size=(16, 16),
+                                                        render_pixels=256))[0]
+    with pytest.raises(UserError, match="camera_pair_twins needs adjacent_camera_fraction"):
+        QuerySamplerConfig(camera_pair_twins=True).validate()

@@ -437,3 +437,36 @@ def test_dense_depth_term_needs_the_head_and_the_maps():
     assert terms["dense_depth"].item() == pytest.approx(LOG2, rel=1e-6)  # |(0,1,2,3) - 1.5| log 2 on average
     total.backward()
     assert pred["dense_log_depth"].grad.abs().sum() > 0
+
+
+def _camera_pair_case():
+    from d4rt.data import ClipQueryDataset, DatasetConfig, QuerySamplerConfig
+    from d4rt.training.data import collate_samples
+
+    cfg = DatasetConfig(num_clips=2, frames=6, size=(32, 32), render_pixels=32 * 32,
+                        sampler=QuerySamplerConfig(num_queries=300, adjacent_camera_fraction=0.3,
+                                                   camera_pair_twins=True))
+    dataset = ClipQueryDataset(cfg)
+    return collate_samples([dataset[0], dataset[1]])
+
+
+def test_camera_pair_term_zero_for_consistent_answers_and_prices_a_travel_error_by_its_length():
+    batch = _camera_pair_case()
+    config = LossConfig(weight_camera_pair=1.0)
+    pred = perfect(batch) | {"visibility_logit": 30.0 * (2 * batch["visibility"] - 1),
+                             "confidence": torch.ones(batch["valid"].shape)}
+    _, terms = d4rt_loss(pred, batch, config)
+    assert terms["camera_pair"] < 1e-5
+    _, terms = d4rt_loss(pred | {"points": 3.0 * batch["points"]}, batch, config)  # any scale: still exact
+    assert terms["camera_pair"] < 1e-5
+    # Every pair's answer moved by the same vector d: each pair's travel is off by |d| / s (s the clip's mean depth).
+    twin, valid = batch["twin"], batch["valid"]
+    pairs = twin >= 0
+    shifted = batch["points"] + torch.where(pairs[..., None], torch.tensor([0.05, 0.0, 0.0]), 0.0)
+    _, terms = d4rt_loss(pred | {"points": shifted}, batch, config)
+    ok = pairs & valid & torch.gather(valid, 1, twin.clamp_min(0))
+    s = mean_depth(shifted, valid)
+    expected = (0.05 / s[:, None]).expand_as(ok)[ok].mean()
+    assert terms["camera_pair"] == pytest.approx(float(expected), rel=1e-4)
+    with pytest.raises(UserError, match="camera_pair_twins: true"):
+        d4rt_loss(pred, {k: v for k, v in batch.items() if k != "twin"}, config)

@@ -109,7 +109,8 @@ def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampl
     true z-depth of every sample pixel (0 where unknown; for ``loss.weight_dense_depth``). With ``patch_frames``
     also ``patch_video (T, h_crop, w_crop, 3) uint8``, the view's crop at the clip's own resolution, augmented
     alike, and ``patch_size (2,)`` long = (h_crop, w_crop): what a model with ``rgb_patch_source="original"`` cuts
-    its query patches from (:func:`d4rt.data.augment.augmented_view_frames`).
+    its query patches from (:func:`d4rt.data.augment.augmented_view_frames`). With the sampler's
+    ``camera_pair_twins`` also ``twin (N,) int64`` (:meth:`d4rt.data.sampler.QuerySampler.sample`).
     """
     drawn = sampler.sample(clip, rng, view)
     answers = clip.oracle.query(drawn["source_queries"])  # exact: queries sit where the source is exact
@@ -137,6 +138,8 @@ def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampl
         cam_to_world=torch.from_numpy(clip.cam_to_world[frames]).float(),
         depth=torch.from_numpy(view_depth(clip.depth, view)),
     )
+    if "twin" in drawn:  # the sampler's camera_pair_twins
+        sample["twin"] = torch.from_numpy(drawn["twin"])
     if patch_video is not None:
         sample.update(patch_video=patch_video, patch_size=torch.tensor(patch_video.shape[1:3]))
     return sample

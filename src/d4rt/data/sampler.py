@@ -42,6 +42,11 @@ class QuerySamplerConfig:
     # above (it overrides them); 0 is the paper's sampler. Why: Reconstruction's pose_pairs="adjacent" asks
     # exactly these, and the uniform draws give them only ~2/T of the time.
     adjacent_camera_fraction: float = 0.0
+    # (not in paper, off by default) Give each camera-pair query a twin: another query of the same pixel and
+    # frame seen in its own camera (t_tgt = t_cam = t_src), written over a query that is not a pair. Why: the
+    # camera chain reads a step's travel from exactly such twins (the same surface point in cameras i and
+    # i - 1), and a loss on the pair (``loss.weight_camera_pair``) needs both answers. Stage 86.
+    camera_pair_twins: bool = False
     # Share of queries whose (u, v) is drawn from foreground-body pixels (object_ids > 0), among those not drawn
     # from a boundary; 0 is the paper's sampler. Why: uniform draws land mostly on the environment (sky, ground,
     # walls), while a depth map's worst errors are on the bodies in front of it (stage 22's notes: a large
@@ -59,6 +64,8 @@ class QuerySamplerConfig:
                      "object_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise UserError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if self.camera_pair_twins and self.adjacent_camera_fraction <= 0:
+            raise UserError("camera_pair_twins needs adjacent_camera_fraction > 0 (the pairs it twins)")
         if self.boundary_radius < 0:
             raise UserError(f"boundary_radius must be >= 0, got {self.boundary_radius}")
 
@@ -160,7 +167,9 @@ class QuerySampler:
 
         Returns ``queries (N, 5)`` float64 in the view's coordinates and frame indices,
         ``source_queries (N, 5)`` the same queries in the clip's own coordinates, and the per-query flags
-        ``from_boundary (N,)``, ``from_object (N,)`` and ``forced_tgt_equals_cam (N,)`` (bool numpy arrays).
+        ``from_boundary (N,)``, ``from_object (N,)`` and ``forced_tgt_equals_cam (N,)`` (bool numpy arrays);
+        with ``camera_pair_twins`` also ``twin (N,)`` int64, the index of a camera-pair query's twin (the same
+        pixel of frame t_src in camera t_src) and -1 for every other query.
         """
         cfg = self.config
         view = view or View.full(clip.num_frames, clip.height, clip.width)
@@ -186,6 +195,13 @@ class QuerySampler:
             neighbour = np.where((neighbour < 0) | (neighbour >= t_view), t_src - step, neighbour)
             t_tgt = np.where(pair, t_src, t_tgt)
             t_cam = np.where(pair, neighbour, t_cam)
+        twin = np.full(n, -1, dtype=np.int64)
+        if cfg.camera_pair_twins and t_view > 1:
+            pairs, others = np.nonzero(pair)[0], rng.permutation(np.nonzero(~pair)[0])
+            k = min(len(pairs), len(others))  # at most half the queries: a pair and its twin
+            pairs, twins = pairs[:k], others[:k]
+            twin[pairs] = twins
+            t_src[twins] = t_tgt[twins] = t_cam[twins] = t_src[pairs]
 
         n_boundary = int(round(cfg.boundary_fraction * n))
         from_boundary = np.zeros(n, dtype=bool)
@@ -203,6 +219,9 @@ class QuerySampler:
         jitter = cfg.subpixel and isinstance(clip.oracle, AnalyticOracle)
         ox = rng.uniform(-0.5, 0.5, n) if jitter else np.zeros(n)
         oy = rng.uniform(-0.5, 0.5, n) if jitter else np.zeros(n)
+        paired = twin >= 0  # a twin is its pair's very pixel (drawn above with the pair's own rule)
+        for values in (cols, rows, ox, oy, from_boundary, from_object):
+            values[twin[paired]] = values[paired]
         u_src = (cols + 0.5 + ox) / clip.width
         v_src = (rows + 0.5 + oy) / clip.height
         source = np.stack([u_src, v_src, frames[t_src], frames[t_tgt], frames[t_cam]], 1).astype(np.float64)
@@ -210,5 +229,6 @@ class QuerySampler:
         queries = np.concatenate([np.clip(uv_view, 0.0, 1.0), np.stack([t_src, t_tgt, t_cam], 1)], 1)
         # The clip above only absorbs float rounding: pixels are drawn inside the crop.
         assert np.abs(queries[:, :2] - uv_view).max() < 1e-9
-        return {"queries": queries, "source_queries": source, "from_boundary": from_boundary,
-                "from_object": from_object, "forced_tgt_equals_cam": forced}
+        drawn = {"queries": queries, "source_queries": source, "from_boundary": from_boundary,
+                 "from_object": from_object, "forced_tgt_equals_cam": forced}
+        return drawn | {"twin": twin} if cfg.camera_pair_twins else drawn

@@ -50,6 +50,17 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   force whatever its true translation, so the many clips whose camera barely travels (pans, a camera
   held still) outvote the few whose parallax shows the direction of travel, and the head stays at zero
   translation (stage 10, docs/training.md); the squared error's push grows with the true translation.
+- *Camera pair* (not in paper; ``weight_camera_pair`` > 0, batches from a sampler with ``camera_pair_twins``):
+  for each camera-pair query (the point of pixel (u, v) of frame t_src at time t_src, seen in camera
+  t_cam = t_src +- 1) and its twin (the same point in camera t_src), the travel the two answers imply,
+  ``P_pair - R P_twin`` with the true rotation R from camera t_src to camera t_cam, against the true
+  travel, each side divided by its own per-clip mean depth (the prediction's detached), as the Euclidean
+  length of the difference. Why: the chained camera path (``pose_pairs="adjacent"``) fits each step from
+  exactly these two answers, and the step's travel came out nearly unrelated to the true direction (median
+  cosine 0.1-0.2, stage 76, docs/training.md): L3D prices each answer's error alone, so errors that differ
+  between the two cameras cost it nothing extra, though they are all the chain sees. The length (not its
+  square) pushes every pair with the same force, however short its step (stage 10's lesson for the pose
+  head). Stage 86.
 - *Log depth* (not in paper; ``weight_log_depth`` > 0): ``|log(z_pred / s_pred) - log(z_target / s_target)|``
   on the queries whose target lies in front of camera t_cam, each side divided by its own per-clip mean
   depth ``s`` (as L3D, so the term is scale-invariant). Why: L3D's log-compressed coordinates weigh the ratio
@@ -150,6 +161,7 @@ class LossConfig:
     weight_pose: float = 0.0
     pose_translation: str = "l1"
     weight_pose_translation: float | None = None
+    weight_camera_pair: float = 0.0
     weight_log_depth: float = 0.0
     weight_ray_angle: float = 0.0
     ray_angle_spread: str = "target"
@@ -165,7 +177,7 @@ class LossConfig:
     def validate(self) -> None:
         optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
-                     "weight_normal", "weight_pose", "weight_log_depth", "weight_ray_angle",
+                     "weight_normal", "weight_pose", "weight_camera_pair", "weight_log_depth", "weight_ray_angle",
                      "weight_dense_depth", "weight_correspondence", *optional):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
@@ -339,8 +351,8 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         ``(total, terms)``: the scalar to minimise and a dict of detached scalars, each unweighted:
         ``3d`` (plain L3D), ``3d_confident`` (c * L3D), ``confidence`` (-log c), ``2d``, ``visibility``,
         ``motion``, ``normal``, plus ``confidence_mean`` (mean c) and ``valid_fraction``, ``uv_fraction``;
-        with their weights > 0 also ``pose_rotation``, ``pose_translation``, ``log_depth``, ``ray_angle``,
-        ``dense_depth`` and ``correspondence``.
+        with their weights > 0 also ``pose_rotation``, ``pose_translation``, ``camera_pair``, ``log_depth``,
+        ``ray_angle``, ``dense_depth`` and ``correspondence``.
     """
     config = config or LossConfig()
     if config.weight_correspondence > 0 and "attention_log_probs" not in pred:
@@ -390,6 +402,11 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
             else config.weight_pose_translation
         total = total + config.weight_pose * lrot + weight_translation * ltrans
         optional_terms = {"pose_rotation": lrot, "pose_translation": ltrans}
+    if config.weight_camera_pair > 0:
+        optional_terms["camera_pair"] = camera_pair_loss(p["points"], target_points, valid, batch,
+                                                         mean_depth(p["points"], valid).detach(),
+                                                         mean_depth(target_points, valid))
+        total = total + config.weight_camera_pair * optional_terms["camera_pair"]
     if config.weight_log_depth > 0:
         log_depth, in_front = log_depth_loss(p["points"], target_points, valid)
         optional_terms["log_depth"] = masked_mean(log_depth, in_front)
@@ -446,6 +463,40 @@ def pose_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], pre
                         f"got {translation_error!r}")
     translation = (difference.square() if translation_error == "squared" else difference.abs()).sum(-1)
     return masked_mean(rotation_error, moved), masked_mean(translation, moved)
+
+
+def camera_pair_loss(pred_points: torch.Tensor, target_points: torch.Tensor, valid: torch.Tensor,
+                     batch: dict[str, torch.Tensor], pred_scale: torch.Tensor,
+                     target_scale: torch.Tensor) -> torch.Tensor:
+    """The camera-pair term (module docstring): mean over the camera-pair queries whose point and twin's point
+    exist of ``|(P_pair - R P_twin) / s_pred - (T_pair - R T_twin) / s_target|``.
+
+    pred_points, target_points: (B, N, 3) in each query's camera t_cam; valid: (B, N) bool; batch: ``twin
+    (B, N)`` long (the index of a camera-pair query's twin, -1 elsewhere), ``queries (B, N, 5)``,
+    ``cam_to_world (B, T, 4, 4)``; scales: (B,) per-clip mean depths. Returns a scalar (0 without pairs).
+    """
+    if "twin" not in batch:
+        raise UserError("loss weight_camera_pair > 0 needs batches with twin queries: set "
+                        "data.dataset.sampler.camera_pair_twins: true")
+    if "cam_to_world" not in batch:
+        raise UserError("loss weight_camera_pair > 0 needs cam_to_world in every training sample")
+    twin = batch["twin"].long()
+    paired = twin >= 0
+    index = twin.clamp_min(0)
+    paired = paired & valid & torch.gather(valid, 1, index)
+    queries, c2w = batch["queries"], batch["cam_to_world"].double()
+    t_src, t_cam = queries[..., 2].round().long(), queries[..., 4].round().long()
+    clip = torch.arange(c2w.shape[0], device=c2w.device)[:, None]
+    rotation = (invert_rigid(c2w)[clip, t_cam] @ c2w[clip, t_src])[..., :3, :3].float()  # camera t_src -> t_cam
+
+    def travel(points: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+        twins = torch.gather(points, 1, index[..., None].expand(-1, -1, 3))
+        rotated = (rotation @ twins[..., None])[..., 0]
+        return (points - rotated) / scale[:, None, None]
+
+    difference = travel(pred_points, pred_scale) - travel(target_points, target_scale)
+    length = (difference.square().sum(-1) + 1e-12).sqrt()  # finite gradient where the travel is exact
+    return masked_mean(length, paired)
 
 
 def _zero_where_missing(target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
