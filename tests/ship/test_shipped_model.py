@@ -32,7 +32,7 @@ from subprocess_budget import budget
 ROOT = Path(__file__).resolve().parents[2]
 EXPECTED = Path(__file__).with_name("expected-subset.json")
 CARD_EVAL = ROOT / "docs" / "model-card" / "eval-synthetic-dynamic-v1.json"
-SHIP_CONFIG = ROOT / "configs" / "ship-tiny-cpu-stage39.yaml"
+SHIP_CONFIG = ROOT / "configs" / "ship-tiny-cpu-stage86-camera-pair.yaml"
 SUBSET_CLIPS = 1
 RTOL = ATOL = 1e-3
 MAX_BYTES = 30 * 2**20
