@@ -450,11 +450,9 @@ def pose_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], pre
         raise UserError("loss weight_pose > 0 needs a model with relative_pose_head: true")
     if "cam_to_world" not in batch:
         raise UserError("loss weight_pose > 0 needs cam_to_world in every training sample")
-    queries, c2w = batch["queries"], batch["cam_to_world"].double()
-    t_src, t_cam = queries[..., 2].round().long(), queries[..., 4].round().long()
-    moved = t_src != t_cam
-    clip = torch.arange(c2w.shape[0], device=c2w.device)[:, None]
-    relative = (invert_rigid(c2w)[clip, t_cam] @ c2w[clip, t_src]).float()  # camera t_src -> camera t_cam
+    queries = batch["queries"]
+    moved = queries[..., 2].round() != queries[..., 4].round()
+    relative = source_to_camera(batch)
     rotation_error = (pred["relative_rotation"].float() - relative[..., :3, :3]).abs().sum((-1, -2))
     difference = (pred["relative_translation"].float() / pred_scale[:, None, None]
                   - relative[..., :3, 3] / target_scale[:, None, None])
@@ -463,6 +461,15 @@ def pose_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], pre
                         f"got {translation_error!r}")
     translation = (difference.square() if translation_error == "squared" else difference.abs()).sum(-1)
     return masked_mean(rotation_error, moved), masked_mean(translation, moved)
+
+
+def source_to_camera(batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    """Each query's rigid motion from camera t_src to camera t_cam, (B, N, 4, 4) float32, from the batch's
+    ``queries (B, N, 5)`` and ``cam_to_world (B, T, 4, 4)`` (composed in float64)."""
+    queries, c2w = batch["queries"], batch["cam_to_world"].double()
+    t_src, t_cam = queries[..., 2].round().long(), queries[..., 4].round().long()
+    clip = torch.arange(c2w.shape[0], device=c2w.device)[:, None]
+    return (invert_rigid(c2w)[clip, t_cam] @ c2w[clip, t_src]).float()
 
 
 def camera_pair_loss(pred_points: torch.Tensor, target_points: torch.Tensor, valid: torch.Tensor,
@@ -481,13 +488,9 @@ def camera_pair_loss(pred_points: torch.Tensor, target_points: torch.Tensor, val
     if "cam_to_world" not in batch:
         raise UserError("loss weight_camera_pair > 0 needs cam_to_world in every training sample")
     twin = batch["twin"].long()
-    paired = twin >= 0
     index = twin.clamp_min(0)
-    paired = paired & valid & torch.gather(valid, 1, index)
-    queries, c2w = batch["queries"], batch["cam_to_world"].double()
-    t_src, t_cam = queries[..., 2].round().long(), queries[..., 4].round().long()
-    clip = torch.arange(c2w.shape[0], device=c2w.device)[:, None]
-    rotation = (invert_rigid(c2w)[clip, t_cam] @ c2w[clip, t_src])[..., :3, :3].float()  # camera t_src -> t_cam
+    paired = (twin >= 0) & valid & torch.gather(valid, 1, index)
+    rotation = source_to_camera(batch)[..., :3, :3]
 
     def travel(points: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
         twins = torch.gather(points, 1, index[..., None].expand(-1, -1, 3))
