@@ -225,6 +225,10 @@ class TrainConfig:
             raise UserError("loss.weight_dense_depth needs model.overrides.dense_depth_head: true")
         if self.loss.weight_dense_depth > 0 and data.tracks is not None:
             raise UserError("loss.weight_dense_depth needs depth maps, which data.tracks clips do not have")
+        twins = data.tracks is None and data.dataset.sampler.camera_pair_twins
+        if self.loss.weight_camera_pair > 0 and not twins:
+            raise UserError("loss.weight_camera_pair needs data.dataset.sampler.camera_pair_twins: true "
+                            "(rendered or file clips, not data.tracks)")
         if self.loss.attention_block is not None and self.loss.attention_block >= model.decoder_depth:
             raise UserError(f"loss.correspondence_block must be below the decoder's {model.decoder_depth} blocks, "
                             f"got {self.loss.attention_block}")
