@@ -470,3 +470,45 @@ def test_camera_pair_term_zero_for_consistent_answers_and_prices_a_travel_error_
     assert terms["camera_pair"] == pytest.approx(float(expected), rel=1e-4)
     with pytest.raises(UserError, match="camera_pair_twins: true"):
         d4rt_loss(pred, {k: v for k, v in batch.items() if k != "twin"}, config)
+
+
+def test_aligned_depth_term_is_the_abs_rel_of_the_depth_queries_after_the_benchmarks_alignment():
+    """AbsRel of s z_pred + t against z_target over the depth queries (t_src = t_tgt = t_cam) in front of the camera,
+    with (s, t) the evaluation's L1 scale and shift; other queries, and clips with the depth ordered backwards, are
+    left out; any positive affine map of the prediction costs nothing more."""
+    from d4rt.evaluation.metrics.depth import l1_scale_and_shift
+
+    z_true = torch.tensor([1.0, 2.0, 4.0, 8.0, 30.0, 5.0, -3.0])
+    z_pred = torch.tensor([0.6, 1.0, 2.5, 3.0, 9.0, 0.1, 2.0])
+    times = torch.tensor([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3], [4, 4, 4], [0, 1, 0], [2, 2, 2]]).float()
+    n = len(z_true)
+    batch = {"points": torch.stack([torch.zeros(n), torch.zeros(n), z_true], -1)[None],
+             "queries": torch.cat([torch.full((n, 2), 0.5), times], 1)[None],
+             "uv": torch.zeros(1, n, 2), "visibility": torch.zeros(1, n), "motion": torch.zeros(1, n, 3),
+             "normals": torch.zeros(1, n, 3), "valid": torch.ones(1, n, dtype=torch.bool),
+             "uv_valid": torch.zeros(1, n, dtype=torch.bool)}
+    pred = perfect(batch)
+    pred["points"] = torch.stack([torch.zeros(n), torch.zeros(n), z_pred], -1)[None].requires_grad_()
+    depth = slice(0, 5)  # query 5 changes time, query 6 lies behind the camera
+    s, t = l1_scale_and_shift(z_pred[depth].double().numpy(), z_true[depth].double().numpy())
+    expected = ((s * z_pred[depth] + t - z_true[depth]).abs() / z_true[depth]).mean().item()
+    assert expected > 0.05
+    config = LossConfig(weight_aligned_depth=0.5)
+    total, terms = d4rt_loss(pred, batch, config)
+    assert terms["aligned_depth"].item() == pytest.approx(expected, rel=1e-4)
+    without, off_terms = d4rt_loss(pred, batch, LossConfig())
+    assert "aligned_depth" not in off_terms
+    assert (total - without).item() == pytest.approx(0.5 * expected, rel=1e-4)
+    total.backward()
+    grad = pred["points"].grad[0]
+    assert torch.isfinite(grad).all() and grad[depth, 2].abs().sum() > 0
+    for scale, shift in ((1e-3, 0.0), (7.0, -2.0), (1e4, 50.0)):
+        moved = perfect(batch) | {"points": pred["points"].detach() * torch.tensor([1.0, 1.0, scale])
+                                  + torch.tensor([0.0, 0.0, shift])}
+        assert d4rt_loss(moved, batch, config)[1]["aligned_depth"].item() == pytest.approx(expected, rel=1e-3)
+    backwards = perfect(batch) | {"points": batch["points"] * torch.tensor([1.0, 1.0, -1.0])}  # scale would be < 0
+    assert d4rt_loss(backwards, batch, config)[1]["aligned_depth"].item() == 0.0
+    exact = perfect(batch) | {"points": batch["points"] * torch.tensor([1.0, 1.0, 3.0]) + torch.tensor([0.0, 0.0, 1.0])}
+    assert d4rt_loss(exact, batch, config)[1]["aligned_depth"].item() == pytest.approx(0.0, abs=1e-5)
+    with pytest.raises(UserError, match="weight_aligned_depth must be a number >= 0"):
+        LossConfig(weight_aligned_depth=-1.0).validate()

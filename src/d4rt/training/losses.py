@@ -69,6 +69,15 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   that ratio; the log depth costs a ratio's error the same at every depth. A prediction below
   ``_MIN_LOG_DEPTH`` of its clip's mean depth (or behind the camera) gets no gradient from this term; L3D
   still pulls it.
+- *Aligned depth* (not in paper; ``weight_aligned_depth`` > 0): the benchmark's own depth error as a term. Over each
+  clip's depth queries (t_src = t_tgt = t_cam) whose target lies in front of the camera, the predicted z is aligned to
+  the true z by the L1-optimal scale and shift of the video-depth protocol (``l1_scale_and_shift``, the evaluation's
+  own solver, on detached values), then each query costs ``|s z_pred + t - z_target| / z_target`` (AbsRel). Why: the
+  benchmark aligns one scale and shift per sequence by L1 in metres, so the far pixels (tens of metres) set it and a
+  far range squeezed against the near one throws every near pixel's relative error up (a few outdoor clips decide
+  the pooled AbsRel, docs/training.md); L3D and the log-depth term price near and far in their own normalised or log
+  units and never see that alignment. A clip whose fitted scale is not positive (depth ordered backwards) or with
+  fewer than two such queries is left to the other terms.
 - *Dense depth* (not in paper; ``weight_dense_depth`` > 0, only for a model with ``dense_depth_head``): the
   head's log-depth of every input pixel against the log of the batch's ``depth`` maps, over the pixels with
   a true depth, each clip's errors centred on their clip mean before the L1: ``|e - mean_clip(e)|`` with
@@ -110,6 +119,7 @@ import torch
 import torch.nn.functional as F
 
 from d4rt.errors import UserError
+from d4rt.evaluation.metrics.depth import l1_scale_and_shift
 from d4rt.geometry.transforms import invert_rigid
 
 # Prediction and batch keys the loss reads.
@@ -139,6 +149,8 @@ class LossConfig:
         by 1 / L3D: the hardest queries (far sky, whose depth then decides a sequence's L1 depth alignment)
         learn least. The confidence keeps its meaning (it still ranks queries by their expected error).
     weight_log_depth: (not in paper) weight of the scale-invariant log-depth term (module docstring); 0 = off.
+    weight_aligned_depth: (not in paper) weight of the aligned-depth (AbsRel) term on the depth queries (module
+        docstring); 0 = off.
     weight_dense_depth: (not in paper) weight of the dense depth term (module docstring); 0 = off. Needs a
         model with ``dense_depth_head`` and batches with ``depth`` maps.
     weight_correspondence: (not in paper) weight of the correspondence-attention term (module docstring);
@@ -163,6 +175,7 @@ class LossConfig:
     weight_pose_translation: float | None = None
     weight_camera_pair: float = 0.0
     weight_log_depth: float = 0.0
+    weight_aligned_depth: float = 0.0
     weight_ray_angle: float = 0.0
     ray_angle_spread: str = "target"
     weight_dense_depth: float = 0.0
@@ -177,7 +190,8 @@ class LossConfig:
     def validate(self) -> None:
         optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
-                     "weight_normal", "weight_pose", "weight_camera_pair", "weight_log_depth", "weight_ray_angle",
+                     "weight_normal", "weight_pose", "weight_camera_pair", "weight_log_depth", "weight_aligned_depth",
+                     "weight_ray_angle",
                      "weight_dense_depth", "weight_correspondence", *optional):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
@@ -237,6 +251,32 @@ def log_depth_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
     target_z = target[..., 2] / mean_depth(target, mask)[:, None]
     error = torch.log(pred_z.clamp_min(_MIN_LOG_DEPTH)) - torch.log(target_z.clamp_min(_MIN_LOG_DEPTH))
     return error.abs(), in_front
+
+
+def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.Tensor, mask: torch.Tensor
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-query AbsRel of the depth queries after each clip's L1 scale-and-shift alignment (module docstring).
+
+    pred, target: (B, N, 3) in each query's camera t_cam; queries: (B, N, 5) (u, v, t_src, t_tgt, t_cam); mask: (B, N)
+    bool (queries with a true point). Returns ``(error (B, N), used (B, N) bool)``: ``used`` marks the depth queries
+    with a target in front of the camera, in the clips whose alignment exists (at least two of them, positive scale).
+    The scale and shift are constants of the step: the gradient reaches the prediction through ``s z_pred`` only.
+    """
+    times = queries[..., 2:5]
+    used = mask & (times[..., 0] == times[..., 1]) & (times[..., 1] == times[..., 2]) & (target[..., 2] > 0)
+    pred_z, target_z = pred[..., 2], target[..., 2]
+    scale, shift = torch.zeros(pred.shape[0], dtype=pred.dtype), torch.zeros(pred.shape[0], dtype=pred.dtype)
+    for b in range(pred.shape[0]):
+        picked = used[b]
+        if int(picked.sum()) >= 2:
+            s, t = l1_scale_and_shift(pred_z[b, picked].detach().double().cpu().numpy(),
+                                      target_z[b, picked].detach().double().cpu().numpy(), rel_tol=1e-6)
+            scale[b], shift[b] = s, t
+    used = used & (scale > 0).to(used.device)[:, None]
+    scale, shift = scale.to(pred.device), shift.to(pred.device)
+    safe_target = torch.where(used, target_z, torch.ones_like(target_z))
+    error = (scale[:, None] * pred_z + shift[:, None] - safe_target).abs() / safe_target
+    return error, used
 
 
 def dense_depth_loss(pred_log_depth: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
@@ -352,7 +392,7 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         ``3d`` (plain L3D), ``3d_confident`` (c * L3D), ``confidence`` (-log c), ``2d``, ``visibility``,
         ``motion``, ``normal``, plus ``confidence_mean`` (mean c) and ``valid_fraction``, ``uv_fraction``;
         with their weights > 0 also ``pose_rotation``, ``pose_translation``, ``camera_pair``, ``log_depth``,
-        ``ray_angle``, ``dense_depth`` and ``correspondence``.
+        ``aligned_depth``, ``ray_angle``, ``dense_depth`` and ``correspondence``.
     """
     config = config or LossConfig()
     if config.weight_correspondence > 0 and "attention_log_probs" not in pred:
@@ -411,6 +451,10 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         log_depth, in_front = log_depth_loss(p["points"], target_points, valid)
         optional_terms["log_depth"] = masked_mean(log_depth, in_front)
         total = total + config.weight_log_depth * optional_terms["log_depth"]
+    if config.weight_aligned_depth > 0:
+        aligned_depth, used = aligned_depth_loss(p["points"], target_points, batch["queries"], valid)
+        optional_terms["aligned_depth"] = masked_mean(aligned_depth, used)
+        total = total + config.weight_aligned_depth * optional_terms["aligned_depth"]
     if config.weight_ray_angle > 0:
         ray_angle, defined = ray_angle_loss(p["points"], target_points, valid, config.ray_angle_spread)
         optional_terms["ray_angle"] = masked_mean(ray_angle, defined)
