@@ -474,8 +474,8 @@ def test_camera_pair_term_zero_for_consistent_answers_and_prices_a_travel_error_
 
 def test_aligned_depth_term_is_the_abs_rel_of_the_depth_queries_after_the_benchmarks_alignment():
     """AbsRel of s z_pred + t against z_target over the depth queries (t_src = t_tgt = t_cam) in front of the camera,
-    with (s, t) the evaluation's L1 scale and shift; other queries, and clips with the depth ordered backwards, are
-    left out; any positive affine map of the prediction costs nothing more."""
+    with z_pred over its own per-clip mean |z| and (s, t) the evaluation's L1 scale and shift; other queries, and clips
+    with the depth ordered backwards, are left out; any positive scale of the prediction costs nothing more."""
     from d4rt.evaluation.metrics.depth import l1_scale_and_shift
 
     z_true = torch.tensor([1.0, 2.0, 4.0, 8.0, 30.0, 5.0, -3.0])
@@ -490,8 +490,9 @@ def test_aligned_depth_term_is_the_abs_rel_of_the_depth_queries_after_the_benchm
     pred = perfect(batch)
     pred["points"] = torch.stack([torch.zeros(n), torch.zeros(n), z_pred], -1)[None].requires_grad_()
     depth = slice(0, 5)  # query 5 changes time, query 6 lies behind the camera
-    s, t = l1_scale_and_shift(z_pred[depth].double().numpy(), z_true[depth].double().numpy())
-    expected = ((s * z_pred[depth] + t - z_true[depth]).abs() / z_true[depth]).mean().item()
+    normalised = z_pred / z_pred.abs().mean()  # the prediction over its own mean |z| of every valid query
+    s, t = l1_scale_and_shift(normalised[depth].double().numpy(), z_true[depth].double().numpy())
+    expected = ((s * normalised[depth] + t - z_true[depth]).abs() / z_true[depth]).mean().item()
     assert expected > 0.05
     config = LossConfig(weight_aligned_depth=0.5)
     total, terms = d4rt_loss(pred, batch, config)
@@ -502,10 +503,16 @@ def test_aligned_depth_term_is_the_abs_rel_of_the_depth_queries_after_the_benchm
     total.backward()
     grad = pred["points"].grad[0]
     assert torch.isfinite(grad).all() and grad[depth, 2].abs().sum() > 0
-    for scale, shift in ((1e-3, 0.0), (7.0, -2.0), (1e4, 50.0)):
-        moved = perfect(batch) | {"points": pred["points"].detach() * torch.tensor([1.0, 1.0, scale])
-                                  + torch.tensor([0.0, 0.0, shift])}
-        assert d4rt_loss(moved, batch, config)[1]["aligned_depth"].item() == pytest.approx(expected, rel=1e-3)
+    # Exactly scale-invariant, so no gradient along the prediction itself (which shrank the depth scale of a run).
+    only = pred["points"].detach().clone().requires_grad_()
+    aligned_only = LossConfig(weight_3d=0.0, confidence_weighting=False, weight_2d=0.0, weight_visibility=0.0,
+                              weight_motion=0.0, weight_normal=0.0, weight_aligned_depth=1.0)
+    d4rt_loss(perfect(batch) | {"points": only}, batch, aligned_only)[0].backward()
+    radial = (only.grad * only.detach()).sum() / (only.grad.norm() * only.detach().norm())
+    assert only.grad.norm() > 0 and abs(radial.item()) < 1e-5
+    for scale in (1e-3, 7.0, 1e4):
+        scaled = perfect(batch) | {"points": pred["points"].detach() * scale}
+        assert d4rt_loss(scaled, batch, config)[1]["aligned_depth"].item() == pytest.approx(expected, rel=1e-3)
     backwards = perfect(batch) | {"points": batch["points"] * torch.tensor([1.0, 1.0, -1.0])}  # scale would be < 0
     assert d4rt_loss(backwards, batch, config)[1]["aligned_depth"].item() == 0.0
     exact = perfect(batch) | {"points": batch["points"] * torch.tensor([1.0, 1.0, 3.0]) + torch.tensor([0.0, 0.0, 1.0])}

@@ -76,8 +76,9 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   benchmark aligns one scale and shift per sequence by L1 in metres, so the far pixels (tens of metres) set it and a
   far range squeezed against the near one throws every near pixel's relative error up (a few outdoor clips decide
   the pooled AbsRel, docs/training.md); L3D and the log-depth term price near and far in their own normalised or log
-  units and never see that alignment. A clip whose fitted scale is not positive (depth ordered backwards) or with
-  fewer than two such queries is left to the other terms.
+  units and never see that alignment. The prediction is divided by its own per-clip mean depth first (as in L3D),
+  so the term is exactly invariant to the prediction's scale. A clip whose fitted scale is not positive (depth
+  ordered backwards) or with fewer than two such queries is left to the other terms.
 - *Dense depth* (not in paper; ``weight_dense_depth`` > 0, only for a model with ``dense_depth_head``): the
   head's log-depth of every input pixel against the log of the batch's ``depth`` maps, over the pixels with
   a true depth, each clip's errors centred on their clip mean before the L1: ``|e - mean_clip(e)|`` with
@@ -260,11 +261,15 @@ def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.
     pred, target: (B, N, 3) in each query's camera t_cam; queries: (B, N, 5) (u, v, t_src, t_tgt, t_cam); mask: (B, N)
     bool (queries with a true point). Returns ``(error (B, N), used (B, N) bool)``: ``used`` marks the depth queries
     with a target in front of the camera, in the clips whose alignment exists (at least two of them, positive scale).
-    The scale and shift are constants of the step: the gradient reaches the prediction through ``s z_pred`` only.
+    The prediction is first divided by its own per-clip mean depth (:func:`mean_depth` over ``mask``, with its
+    gradient, as L3D does); the scale and shift fitted to that are constants of the step. Why the division: with the
+    raw prediction the detached alignment's gradient has a component along the prediction itself, which shrank the
+    model's depth scale 10-20 times in 600 steps (stage 93's first arm) and grew every scale-invariant term's
+    gradient as much; divided by its own mean the term is exactly invariant to the prediction's scale.
     """
     times = queries[..., 2:5]
     used = mask & (times[..., 0] == times[..., 1]) & (times[..., 1] == times[..., 2]) & (target[..., 2] > 0)
-    pred_z, target_z = pred[..., 2], target[..., 2]
+    pred_z, target_z = pred[..., 2] / mean_depth(pred, mask)[:, None], target[..., 2]
     scale, shift = torch.zeros(pred.shape[0], dtype=pred.dtype), torch.zeros(pred.shape[0], dtype=pred.dtype)
     for b in range(pred.shape[0]):
         picked = used[b]
