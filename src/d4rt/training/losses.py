@@ -192,8 +192,7 @@ class LossConfig:
         optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
                      "weight_normal", "weight_pose", "weight_camera_pair", "weight_log_depth", "weight_aligned_depth",
-                     "weight_ray_angle",
-                     "weight_dense_depth", "weight_correspondence", *optional):
+                     "weight_ray_angle", "weight_dense_depth", "weight_correspondence", *optional):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
                 raise UserError(f"loss {name} must be a number >= 0, got {value!r}")
