@@ -519,3 +519,33 @@ def test_aligned_depth_term_is_the_abs_rel_of_the_depth_queries_after_the_benchm
     assert d4rt_loss(exact, batch, config)[1]["aligned_depth"].item() == pytest.approx(0.0, abs=1e-5)
     with pytest.raises(UserError, match="weight_aligned_depth must be a number >= 0"):
         LossConfig(weight_aligned_depth=-1.0).validate()
+
+
+def test_aligned_depth_term_with_the_scale_alone_prices_an_affine_answer_and_not_a_proportional_one():
+    """With aligned_depth_alignment "scale" the fit is the evaluation's L1 scale (shift 0): a prediction
+    proportional to the truth costs nothing at any scale, an affine one costs its AbsRel after that scale."""
+    from d4rt.evaluation.metrics.depth import l1_scale
+
+    z_true = torch.tensor([1.0, 2.0, 4.0, 8.0, 30.0])
+    n = len(z_true)
+    times = torch.arange(n).float()[:, None].repeat(1, 3)
+    batch = {"points": torch.stack([torch.zeros(n), torch.zeros(n), z_true], -1)[None],
+             "queries": torch.cat([torch.full((n, 2), 0.5), times], 1)[None],
+             "uv": torch.zeros(1, n, 2), "visibility": torch.zeros(1, n), "motion": torch.zeros(1, n, 3),
+             "normals": torch.zeros(1, n, 3), "valid": torch.ones(1, n, dtype=torch.bool),
+             "uv_valid": torch.zeros(1, n, dtype=torch.bool)}
+    config = LossConfig(weight_aligned_depth=1.0, aligned_depth_alignment="scale")
+    for scale in (0.01, 3.0):
+        proportional = perfect(batch) | {"points": batch["points"] * scale}
+        assert d4rt_loss(proportional, batch, config)[1]["aligned_depth"].item() == pytest.approx(0.0, abs=1e-6)
+    affine_z = 3.0 * z_true + 1.0
+    affine = perfect(batch) | {"points": torch.stack([torch.zeros(n), torch.zeros(n), affine_z], -1)[None]}
+    normalised = affine_z / affine_z.mean()
+    s = l1_scale(normalised.double().numpy(), z_true.double().numpy())
+    expected = ((s * normalised - z_true).abs() / z_true).mean().item()
+    assert expected > 0.05
+    assert d4rt_loss(affine, batch, config)[1]["aligned_depth"].item() == pytest.approx(expected, rel=1e-4)
+    shift_too = LossConfig(weight_aligned_depth=1.0)
+    assert d4rt_loss(affine, batch, shift_too)[1]["aligned_depth"].item() == pytest.approx(0.0, abs=1e-5)
+    with pytest.raises(UserError, match="aligned_depth_alignment must be one of scale&shift, scale"):
+        LossConfig(aligned_depth_alignment="median").validate()

@@ -78,7 +78,10 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   the pooled AbsRel, docs/training.md); L3D and the log-depth term price near and far in their own normalised or log
   units and never see that alignment. The prediction is divided by its own per-clip mean depth first (as in L3D),
   so the term is exactly invariant to the prediction's scale. A clip whose fitted scale is not positive (depth
-  ordered backwards) or with fewer than two such queries is left to the other terms.
+  ordered backwards) or with fewer than two such queries is left to the other terms. With
+  ``aligned_depth_alignment: scale`` the fit is the L1-optimal scale alone (``l1_scale``): the answers are then
+  priced as proportional to the truth, as L3D and every 3D output need, where the protocol's shift lets them drift
+  to merely affine (stage 93's weight 1.0 bought held-out AbsRel with held-out L3D).
 - *Dense depth* (not in paper; ``weight_dense_depth`` > 0, only for a model with ``dense_depth_head``): the
   head's log-depth of every input pixel against the log of the batch's ``depth`` maps, over the pixels with
   a true depth, each clip's errors centred on their clip mean before the L1: ``|e - mean_clip(e)|`` with
@@ -120,7 +123,7 @@ import torch
 import torch.nn.functional as F
 
 from d4rt.errors import UserError
-from d4rt.evaluation.metrics.depth import l1_scale_and_shift
+from d4rt.evaluation.metrics.depth import l1_scale, l1_scale_and_shift
 from d4rt.geometry.transforms import invert_rigid
 
 # Prediction and batch keys the loss reads.
@@ -129,6 +132,8 @@ PREDICTION_KEYS = ("points", "uv", "visibility_logit", "motion", "normals", "con
 POSE_TRANSLATION_ERRORS = ("l1", "squared")
 # What the ray-angle term divides by (LossConfig.ray_angle_spread).
 RAY_ANGLE_SPREADS = ("target", "geometric")
+# What the aligned-depth term fits per clip (LossConfig.aligned_depth_alignment).
+ALIGNED_DEPTH_ALIGNMENTS = ("scale&shift", "scale")
 # Guards a degenerate all-zero prediction only; real scenes are many orders of magnitude deeper.
 _MIN_SCALE = 1e-12
 # Lowest normalised depth the log-depth term takes a log of (1/1000 of the clip's mean depth).
@@ -152,6 +157,9 @@ class LossConfig:
     weight_log_depth: (not in paper) weight of the scale-invariant log-depth term (module docstring); 0 = off.
     weight_aligned_depth: (not in paper) weight of the aligned-depth (AbsRel) term on the depth queries (module
         docstring); 0 = off.
+    aligned_depth_alignment: (not in paper) the alignment that term fits per clip: "scale&shift" (the video-depth
+        protocol's, as the benchmark) or "scale" (the L1-optimal scale alone, so the answers are priced as
+        proportional to the truth, which L3D and every 3D output need, rather than merely affine to it).
     weight_dense_depth: (not in paper) weight of the dense depth term (module docstring); 0 = off. Needs a
         model with ``dense_depth_head`` and batches with ``depth`` maps.
     weight_correspondence: (not in paper) weight of the correspondence-attention term (module docstring);
@@ -177,6 +185,7 @@ class LossConfig:
     weight_camera_pair: float = 0.0
     weight_log_depth: float = 0.0
     weight_aligned_depth: float = 0.0
+    aligned_depth_alignment: str = "scale&shift"
     weight_ray_angle: float = 0.0
     ray_angle_spread: str = "target"
     weight_dense_depth: float = 0.0
@@ -199,6 +208,9 @@ class LossConfig:
         if self.pose_translation not in POSE_TRANSLATION_ERRORS:
             raise UserError(f"loss pose_translation must be one of {', '.join(POSE_TRANSLATION_ERRORS)}, "
                             f"got {self.pose_translation!r}")
+        if self.aligned_depth_alignment not in ALIGNED_DEPTH_ALIGNMENTS:
+            raise UserError(f"loss aligned_depth_alignment must be one of {', '.join(ALIGNED_DEPTH_ALIGNMENTS)}, "
+                            f"got {self.aligned_depth_alignment!r}")
         if self.ray_angle_spread not in RAY_ANGLE_SPREADS:
             raise UserError(f"loss ray_angle_spread must be one of {', '.join(RAY_ANGLE_SPREADS)}, "
                             f"got {self.ray_angle_spread!r}")
@@ -253,9 +265,12 @@ def log_depth_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
     return error.abs(), in_front
 
 
-def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.Tensor, mask: torch.Tensor
-                       ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per-query AbsRel of the depth queries after each clip's L1 scale-and-shift alignment (module docstring).
+def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.Tensor, mask: torch.Tensor,
+                       alignment: str = "scale&shift") -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-query AbsRel of the depth queries after each clip's L1 alignment (module docstring).
+
+    ``alignment`` is "scale&shift" (the benchmark's: :func:`l1_scale_and_shift`) or "scale" (:func:`l1_scale`, shift
+    0).
 
     pred, target: (B, N, 3) in each query's camera t_cam; queries: (B, N, 5) (u, v, t_src, t_tgt, t_cam); mask: (B, N)
     bool (queries with a true point). Returns ``(error (B, N), used (B, N) bool)``: ``used`` marks the depth queries
@@ -273,9 +288,9 @@ def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.
     for b in range(pred.shape[0]):
         picked = used[b]
         if int(picked.sum()) >= 2:
-            s, t = l1_scale_and_shift(pred_z[b, picked].detach().double().cpu().numpy(),
-                                      target_z[b, picked].detach().double().cpu().numpy(), rel_tol=1e-6)
-            scale[b], shift[b] = s, t
+            p, g = pred_z[b, picked].detach().double().cpu().numpy(), target_z[b, picked].detach().double().cpu().numpy()
+            scale[b], shift[b] = l1_scale_and_shift(p, g, rel_tol=1e-6) if alignment == "scale&shift" else (
+                l1_scale(p, g), 0.0)
     used = used & (scale > 0).to(used.device)[:, None]
     scale, shift = scale.to(pred.device), shift.to(pred.device)
     safe_target = torch.where(used, target_z, torch.ones_like(target_z))
@@ -456,7 +471,8 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         optional_terms["log_depth"] = masked_mean(log_depth, in_front)
         total = total + config.weight_log_depth * optional_terms["log_depth"]
     if config.weight_aligned_depth > 0:
-        aligned_depth, used = aligned_depth_loss(p["points"], target_points, batch["queries"], valid)
+        aligned_depth, used = aligned_depth_loss(p["points"], target_points, batch["queries"], valid,
+                                                    config.aligned_depth_alignment)
         optional_terms["aligned_depth"] = masked_mean(aligned_depth, used)
         total = total + config.weight_aligned_depth * optional_terms["aligned_depth"]
     if config.weight_ray_angle > 0:
