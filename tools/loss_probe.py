@@ -21,6 +21,12 @@ model find a pixel in another frame?) and ``query_kind_terms``' (L3D over each k
 Writes JSON: per checkpoint the mean of every term over the samples and the per-sample values; and for every
 checkpoint after the first, per term, the paired difference against the first (``tools/compare_evals.py``'s
 paired bootstrap over samples: mean difference, 95% interval, samples on which it is lower). Prints a table.
+
+``--reference-from PROBE.json`` takes the reference (the first model) from an earlier probe's figures instead of its
+weights, so an arm can be paired with a control whose run folder is gone. The earlier probe must have drawn the same
+samples (seed, count, queries and its config's dataset section, loaded with its own overrides; else a one-line
+error). Where the two loss sections differ, only the terms that do not depend on the loss settings are paired
+(``LOSS_FREE_TERMS``: L3D, its kinds and the motion terms).
 """
 
 from __future__ import annotations
@@ -49,6 +55,10 @@ from d4rt.training.losses import d4rt_loss, point_loss  # noqa: E402
 HELD_OUT_SEED = 6_000_000
 # The terms reported in the table (all terms are in the JSON).
 HIGHER_IS_BETTER = ("2d_slope",)
+# The terms whose value does not depend on the loss settings: the only ones paired with a --reference-from probe
+# whose loss section differs.
+LOSS_FREE_TERMS = ("3d", "2d_moved", "2d_still", "2d_slope", "3d_depth", "3d_other_camera", "3d_track",
+                   "3d_track_other_camera", "3d_moving", "3d_static")
 SHOWN = ("3d", "2d", "2d_moved", "2d_still", "2d_slope", "pose_rotation", "pose_translation", "confidence_mean",
          "correspondence")
 
@@ -128,6 +138,30 @@ def motion_terms(uv: torch.Tensor, sample: dict[str, torch.Tensor]) -> dict[str,
     }
 
 
+def earlier_reference(path: str, config: TrainConfig, samples: int, queries: int
+                      ) -> tuple[str, dict, tuple[str, ...] | None]:
+    """The reference model of an earlier probe JSON: ``(name, its figures, the terms to pair or None for all)``.
+
+    Raises UserError when that probe drew other samples than ``config`` with ``samples`` and ``queries`` would."""
+    try:
+        earlier = json.loads(Path(path).read_text())
+        name = earlier["reference"]
+        figures = earlier["models"][name]
+        earlier_config = TrainConfig.load(earlier["config"], parse_overrides(earlier["overrides"]))
+    except (OSError, ValueError, KeyError) as error:
+        raise UserError(f"--reference-from {path}: not a readable loss-probe JSON ({error})") from error
+    asked = (HELD_OUT_SEED, samples, queries)
+    if (earlier["seed"], earlier["samples"], earlier["queries"]) != asked:
+        raise UserError(f"--reference-from {path} drew (seed, samples, queries) = "
+                        f"{(earlier['seed'], earlier['samples'], earlier['queries'])}, this probe {asked}")
+    mine, theirs = (dataclasses.replace(c.data.dataset, seed=0) for c in (config, earlier_config))
+    patches = (c.model.build().patches_from_original for c in (config, earlier_config))
+    if mine != theirs or len(set(patches)) > 1:
+        raise UserError(f"--reference-from {path}: its config {earlier['config']} draws other samples (its data.dataset "
+                        "section, or where its model cuts RGB patches, differs from this probe's)")
+    return name, figures, None if config.loss == earlier_config.loss else LOSS_FREE_TERMS
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoints", nargs="+", help="model directories (model.safetensors + config.json)")
@@ -138,6 +172,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--queries", type=int, default=2048)
     parser.add_argument("--out", required=True)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1: beside a training run)")
+    parser.add_argument("--reference-from", metavar="PROBE.json",
+                        help="take the reference (first model) from an earlier probe's figures (module docstring)")
     args = parser.parse_args(argv)
     if args.samples < 2 or args.queries < 1:
         parser.error("--samples must be at least 2 and --queries at least 1")
@@ -150,8 +186,14 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(str(error))
     if config.data.tracks is not None:
         parser.error(f"{args.config} trains on clips with tracks (data.tracks); this probe draws synthetic clips only")
+    models, paired_terms = {}, None
+    if args.reference_from:
+        try:
+            name, models[name], paired_terms = earlier_reference(args.reference_from, config, args.samples, args.queries)
+        except UserError as error:
+            parser.error(str(error))
+        args.checkpoints = [name, *args.checkpoints]
     samples = held_out_samples(config, args.samples, args.queries)
-    models = {}
     for checkpoint, network in tqdm(networks.items(), desc="checkpoints"):
         terms = sample_losses(network, samples, config)
         models[checkpoint] = {"mean": {k: float(np.nanmean(v)) for k, v in terms.items()}, "samples": terms}
@@ -160,13 +202,15 @@ def main(argv: list[str] | None = None) -> None:
     for checkpoint in others:
         paired[checkpoint] = {}
         for key, values in models[checkpoint]["samples"].items():
-            if key in models[reference]["samples"] and key != "confidence_mean":
+            if (key in models[reference]["samples"] and key != "confidence_mean"
+                    and (paired_terms is None or key in paired_terms)):
                 base, new = np.array(models[reference]["samples"][key]), np.array(values)
                 both = ~(np.isnan(base) | np.isnan(new))  # a sample without moved queries has no 2d_* terms
                 paired[checkpoint][key] = paired_bootstrap(base[both], new[both], np.ones(int(both.sum())),
                                                            lower_is_better=key not in HIGHER_IS_BETTER)
     result = {"config": args.config, "overrides": args.set, "seed": HELD_OUT_SEED, "samples": args.samples, "queries": args.queries,
-              "reference": reference, "models": models, "paired_against_reference": paired}
+              "reference": reference, "reference_from": args.reference_from, "models": models,
+              "paired_against_reference": paired}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=1))
     shown = [k for k in SHOWN if k in models[reference]["mean"]]

@@ -73,6 +73,44 @@ def test_identical_weights_compare_equal_and_terms_are_the_loss(config_path, tmp
     assert "| reference |" in capsys.readouterr().out
 
 
+def test_a_reference_from_an_earlier_probe_pairs_as_its_weights_would(config_path, tmp_path, capsys):
+    """--reference-from: the earlier probe's reference figures stand in for its weights (a run folder gone); a config
+    with another loss pairs only the loss-free terms; one drawing other samples is refused in one line."""
+    earlier = tmp_path / "earlier.json"
+    loss_probe.main([str(SHIPPED), "--config", str(config_path), "--samples", "3", "--queries", "48",
+                     "--out", str(earlier)])
+    copy = tmp_path / "copy"
+    shutil.copytree(SHIPPED, copy)
+    out = tmp_path / "later.json"
+    loss_probe.main([str(copy), "--config", str(config_path), "--samples", "3", "--queries", "48", "--out", str(out),
+                     "--reference-from", str(earlier)])
+    result = json.loads(out.read_text())
+    assert result["reference"] == str(SHIPPED) and result["reference_from"] == str(earlier)
+    paired = result["paired_against_reference"][str(copy)]
+    assert paired["3d"]["difference"] == 0.0 and "total" in paired
+    other_loss = yaml.safe_load(config_path.read_text())
+    other_loss["loss"]["weight_aligned_depth"] = 1.0
+    other_loss_path = tmp_path / "other-loss.yaml"
+    other_loss_path.write_text(yaml.safe_dump(other_loss))
+    loss_probe.main([str(copy), "--config", str(other_loss_path), "--samples", "3", "--queries", "48",
+                     "--out", str(out), "--reference-from", str(earlier)])
+    paired = json.loads(out.read_text())["paired_against_reference"][str(copy)]
+    assert paired["3d"]["difference"] == 0.0 and set(paired) <= set(loss_probe.LOSS_FREE_TERMS)
+    other_data = yaml.safe_load(config_path.read_text())
+    other_data["data"]["dataset"]["frame_choices"] = [8]
+    other_data_path = tmp_path / "other-data.yaml"
+    other_data_path.write_text(yaml.safe_dump(other_data))
+    capsys.readouterr()
+    with pytest.raises(SystemExit):
+        loss_probe.main([str(copy), "--config", str(other_data_path), "--samples", "3", "--queries", "48",
+                         "--out", str(out), "--reference-from", str(earlier)])
+    assert "draws other samples" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        loss_probe.main([str(copy), "--config", str(config_path), "--samples", "2", "--queries", "48",
+                         "--out", str(out), "--reference-from", str(earlier)])
+    assert "drew (seed, samples, queries)" in capsys.readouterr().err
+
+
 def test_motion_terms_measure_how_far_pixels_move():
     # Four queries (u, v, t_src, t_tgt, t_cam): two moved inside the image, one moved outside it, one in its own frame.
     queries = torch.tensor([[0.2, 0.2, 0, 3, 3], [0.5, 0.5, 1, 0, 0], [0.9, 0.9, 0, 2, 2], [0.4, 0.4, 2, 2, 2]])
