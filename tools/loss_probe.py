@@ -192,6 +192,8 @@ def main(argv: list[str] | None = None) -> None:
             name, models[name], paired_terms = earlier_reference(args.reference_from, config, args.samples, args.queries)
         except UserError as error:
             parser.error(str(error))
+        if name in args.checkpoints:
+            parser.error(f"--reference-from {args.reference_from}: its reference {name} is also a checkpoint to probe")
         args.checkpoints = [name, *args.checkpoints]
     samples = held_out_samples(config, args.samples, args.queries)
     for checkpoint, network in tqdm(networks.items(), desc="checkpoints"):

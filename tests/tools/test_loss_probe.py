@@ -109,6 +109,10 @@ def test_a_reference_from_an_earlier_probe_pairs_as_its_weights_would(config_pat
         loss_probe.main([str(copy), "--config", str(config_path), "--samples", "2", "--queries", "48",
                          "--out", str(out), "--reference-from", str(earlier)])
     assert "drew (seed, samples, queries)" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # the reference's own weights probed again would overwrite its kept figures
+        loss_probe.main([str(SHIPPED), "--config", str(config_path), "--samples", "3", "--queries", "48",
+                         "--out", str(out), "--reference-from", str(earlier)])
+    assert "is also a checkpoint to probe" in capsys.readouterr().err
 
 
 def test_motion_terms_measure_how_far_pixels_move():
