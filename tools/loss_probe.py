@@ -157,8 +157,8 @@ def earlier_reference(path: str, config: TrainConfig, samples: int, queries: int
     mine, theirs = (dataclasses.replace(c.data.dataset, seed=0) for c in (config, earlier_config))
     patches = (c.model.build().patches_from_original for c in (config, earlier_config))
     if mine != theirs or len(set(patches)) > 1:
-        raise UserError(f"--reference-from {path}: its config {earlier['config']} draws other samples (its data.dataset "
-                        "section, or where its model cuts RGB patches, differs from this probe's)")
+        raise UserError(f"--reference-from {path}: its config {earlier['config']} draws other samples (its "
+                        "data.dataset section, or where its model cuts RGB patches, differs from this probe's)")
     return name, figures, None if config.loss == earlier_config.loss else LOSS_FREE_TERMS
 
 
@@ -189,7 +189,8 @@ def main(argv: list[str] | None = None) -> None:
     models, paired_terms = {}, None
     if args.reference_from:
         try:
-            name, models[name], paired_terms = earlier_reference(args.reference_from, config, args.samples, args.queries)
+            name, models[name], paired_terms = earlier_reference(args.reference_from, config, args.samples,
+                                                                 args.queries)
         except UserError as error:
             parser.error(str(error))
         if name in args.checkpoints:

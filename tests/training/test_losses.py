@@ -472,6 +472,17 @@ def test_camera_pair_term_zero_for_consistent_answers_and_prices_a_travel_error_
         d4rt_loss(pred, {k: v for k, v in batch.items() if k != "twin"}, config)
 
 
+def on_axis_batch(z_true: torch.Tensor, times: torch.Tensor) -> dict[str, torch.Tensor]:
+    """A one-clip batch of N queries at the image centre whose true points lie on the optical axis at depths
+    ``z_true`` (N,), with (t_src, t_tgt, t_cam) ``times`` (N, 3); every point valid, no 2D targets."""
+    n = len(z_true)
+    return {"points": torch.stack([torch.zeros(n), torch.zeros(n), z_true], -1)[None],
+            "queries": torch.cat([torch.full((n, 2), 0.5), times], 1)[None],
+            "uv": torch.zeros(1, n, 2), "visibility": torch.zeros(1, n), "motion": torch.zeros(1, n, 3),
+            "normals": torch.zeros(1, n, 3), "valid": torch.ones(1, n, dtype=torch.bool),
+            "uv_valid": torch.zeros(1, n, dtype=torch.bool)}
+
+
 def test_aligned_depth_term_is_the_abs_rel_of_the_depth_queries_after_the_benchmarks_alignment():
     """AbsRel of s z_pred + t against z_target over the depth queries (t_src = t_tgt = t_cam) in front of the camera,
     with z_pred over its own per-clip mean |z| and (s, t) the evaluation's L1 scale and shift; other queries, and clips
@@ -482,11 +493,7 @@ def test_aligned_depth_term_is_the_abs_rel_of_the_depth_queries_after_the_benchm
     z_pred = torch.tensor([0.6, 1.0, 2.5, 3.0, 9.0, 0.1, 2.0])
     times = torch.tensor([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3], [4, 4, 4], [0, 1, 0], [2, 2, 2]]).float()
     n = len(z_true)
-    batch = {"points": torch.stack([torch.zeros(n), torch.zeros(n), z_true], -1)[None],
-             "queries": torch.cat([torch.full((n, 2), 0.5), times], 1)[None],
-             "uv": torch.zeros(1, n, 2), "visibility": torch.zeros(1, n), "motion": torch.zeros(1, n, 3),
-             "normals": torch.zeros(1, n, 3), "valid": torch.ones(1, n, dtype=torch.bool),
-             "uv_valid": torch.zeros(1, n, dtype=torch.bool)}
+    batch = on_axis_batch(z_true, times)
     pred = perfect(batch)
     pred["points"] = torch.stack([torch.zeros(n), torch.zeros(n), z_pred], -1)[None].requires_grad_()
     depth = slice(0, 5)  # query 5 changes time, query 6 lies behind the camera
@@ -528,12 +535,7 @@ def test_aligned_depth_term_with_the_scale_alone_prices_an_affine_answer_and_not
 
     z_true = torch.tensor([1.0, 2.0, 4.0, 8.0, 30.0])
     n = len(z_true)
-    times = torch.arange(n).float()[:, None].repeat(1, 3)
-    batch = {"points": torch.stack([torch.zeros(n), torch.zeros(n), z_true], -1)[None],
-             "queries": torch.cat([torch.full((n, 2), 0.5), times], 1)[None],
-             "uv": torch.zeros(1, n, 2), "visibility": torch.zeros(1, n), "motion": torch.zeros(1, n, 3),
-             "normals": torch.zeros(1, n, 3), "valid": torch.ones(1, n, dtype=torch.bool),
-             "uv_valid": torch.zeros(1, n, dtype=torch.bool)}
+    batch = on_axis_batch(z_true, torch.arange(n).float()[:, None].repeat(1, 3))  # every query a depth query
     config = LossConfig(weight_aligned_depth=1.0, aligned_depth_alignment="scale")
     for scale in (0.01, 3.0):
         proportional = perfect(batch) | {"points": batch["points"] * scale}

@@ -288,7 +288,7 @@ def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.
     for b in range(pred.shape[0]):
         picked = used[b]
         if int(picked.sum()) >= 2:
-            p, g = pred_z[b, picked].detach().double().cpu().numpy(), target_z[b, picked].detach().double().cpu().numpy()
+            p, g = (z[b, picked].detach().double().cpu().numpy() for z in (pred_z, target_z))
             scale[b], shift[b] = l1_scale_and_shift(p, g, rel_tol=1e-6) if alignment == "scale&shift" else (
                 l1_scale(p, g), 0.0)
     used = used & (scale > 0).to(used.device)[:, None]
