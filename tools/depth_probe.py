@@ -22,6 +22,8 @@ Also reported, because no alignment can hide it: per clip with pixels truly beyo
 no room reaches 15), the ratio of the median predicted depth of the far pixels to that of the near
 ones, beside the true ratio, and over those clips the median of |log(predicted / true ratio)|
 (``far_near_log_error``; 0 = the far range in the right proportion to the near one).
+With ``--gate-seed N`` the clips are a judge's gate set instead (definition i with seed N + i, the clips of
+``tools/measure_focal.py --gate-seed N``; docs/training.md, "Gate sets drawn per judgment").
 With ``--dense-head`` (stage 67) each checkpoint's depth maps come from its dense depth head
 (``d4rt.model.dense_depth``, a training aid) instead of its queries: the head's log-depth at encoder resolution,
 resized bilinearly to the clip, exponentiated and scored alike. Why: it says whether the scene tokens hold the depth
@@ -44,7 +46,7 @@ from d4rt.errors import UserError
 from d4rt.evaluation.benchmarks import Benchmark
 from d4rt.evaluation.harness import aggregate, evaluate_sequence
 from d4rt.evaluation.predictions import Prediction, d4rt_predictor
-from d4rt.evaluation.synthetic_benchmark import NUM_CLIPS, SIZES, clip_specs
+from d4rt.evaluation.synthetic_benchmark import NUM_CLIPS, SIZES, clip_specs, gate_specs
 
 HELD_OUT_SEED = 9_000_000
 DEFAULT_CLIPS = 16  # the probe every stage since 20 reports
@@ -62,10 +64,12 @@ def probe_indices() -> list[int]:
     return first + [i for i in range(NUM_CLIPS) if i not in first]
 
 
-def render_probe_clips(count: int, skip: int = 0) -> list:
-    """The first ``count`` probe clips (``probe_indices`` order), less the first ``skip`` of them."""
-    specs = clip_specs()
-    return [replace(specs[i], seed=HELD_OUT_SEED + i).render() for i in probe_indices()[skip:count]]
+def render_probe_clips(count: int, skip: int = 0, gate_seed: int | None = None) -> list:
+    """The first ``count`` probe clips (``probe_indices`` order), less the first ``skip`` of them; with
+    ``gate_seed``, those definitions from a judge's gate set instead of the held-out seeds."""
+    specs = gate_specs(gate_seed) if gate_seed is not None else [
+        replace(spec, seed=HELD_OUT_SEED + spec.index) for spec in clip_specs()]
+    return [specs[i].render() for i in probe_indices()[skip:count]]
 
 
 class DenseHeadPredictor:
@@ -141,6 +145,8 @@ def main() -> None:
     parser.add_argument("--skip", type=int, default=0,
                         help="leave out the first SKIP of those clips (e.g. --clips 48 --skip 16: the 32 clips that "
                              "the default probe never scored, to confirm a finding on fresh clips)")
+    parser.add_argument("--gate-seed", type=int, default=None, metavar="N",
+                        help="the clips of a judge's gate set (seeds N + index) instead of the held-out clips")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     parser.add_argument("--dense-head", action="store_true",
                         help="score the depth of each checkpoint's dense depth head instead of its queries")
@@ -155,8 +161,12 @@ def main() -> None:
         predictors = {checkpoint: make(checkpoint) for checkpoint in args.checkpoints}
     except UserError as error:
         parser.error(str(error))
-    sequences = render_probe_clips(args.clips, args.skip)
-    report = {"held_out_seed": HELD_OUT_SEED, "clip_definitions": probe_indices()[args.skip:args.clips],
+    try:
+        sequences = render_probe_clips(args.clips, args.skip, args.gate_seed)
+    except UserError as error:
+        parser.error(str(error))
+    report = {"held_out_seed": HELD_OUT_SEED if args.gate_seed is None else None, "gate_seed": args.gate_seed,
+              "clip_definitions": probe_indices()[args.skip:args.clips],
               "depth_from": "dense depth head" if args.dense_head else "queries", "models": {}}
     for checkpoint, predictor in predictors.items():
         start = time.perf_counter()

@@ -14,7 +14,9 @@ intrinsics in pixels of the input frames):
 
 ``--held-out`` measures the synthetic clips on the benchmark's 48 clip definitions drawn from seeds the benchmark
 never uses (7,000,000 + index, the stream of ``tools/focal_motion_probe.py``), under the key ``synthetic-held-out``:
-for choosing between weights without looking at the benchmark.
+for choosing between weights without looking at the benchmark. ``--gate-seed N`` measures them on the same
+definitions with seeds N + index instead, under the key ``synthetic-gate-N``: a judge's gate set, drawn for one
+judgment and never measured before (docs/training.md, "Gate sets drawn per judgment").
 
 Writes JSON (every number the model card quotes about focal lengths) and prints a summary.
 """
@@ -31,7 +33,7 @@ from tqdm import tqdm
 
 from d4rt.cli.demo import TUM_FOLDER, TUM_FX, tum_frames_dir
 from d4rt.evaluation.synthetic_benchmark import NAME as BENCHMARK
-from d4rt.evaluation.synthetic_benchmark import clip_specs
+from d4rt.evaluation.synthetic_benchmark import GATE_SEEDS, clip_specs, gate_specs
 from d4rt.io.frames import load_frames
 from d4rt.model import D4RT
 
@@ -40,14 +42,27 @@ HELD_OUT = "synthetic-held-out"
 HELD_OUT_SEED = 7_000_000  # as tools/focal_motion_probe.py
 
 
-def synthetic_focal_errors(model: D4RT, limit: int | None, held_out: bool = False) -> dict:
+def gate_key(seed_base: int) -> str:
+    """The JSON key of a gate set's clips."""
+    return f"synthetic-gate-{seed_base}"
+
+
+def synthetic_focal_errors(model: D4RT, limit: int | None, held_out: bool = False,
+                           seed_base: int | None = None) -> dict:
     """Per-clip median relative fx error on synthetic-dynamic-v1 (``held_out``: its clip definitions drawn from
-    unused seeds), and its median / mean over clips."""
-    specs = clip_specs()[:limit]
-    if held_out:
-        specs = [replace(s, seed=HELD_OUT_SEED + s.index) for s in specs]
+    unused seeds; ``seed_base``: a gate set, drawn from seeds ``seed_base`` + index), and its median / mean over
+    clips."""
+    if held_out and seed_base is not None:
+        raise ValueError("held_out and seed_base name two different clip sets; pass one")
+    if seed_base is not None:
+        specs = gate_specs(seed_base)[:limit]
+    elif held_out:
+        specs = [replace(s, seed=HELD_OUT_SEED + s.index) for s in clip_specs()[:limit]]
+    else:
+        specs = clip_specs()[:limit]
+    label = HELD_OUT if held_out else gate_key(seed_base) if seed_base is not None else BENCHMARK
     clips = []
-    for spec in tqdm(specs, desc=f"focal {HELD_OUT if held_out else BENCHMARK}", unit="clip"):
+    for spec in tqdm(specs, desc=f"focal {label}", unit="clip"):
         sequence = spec.render()
         estimated = model.reconstruct(sequence.rgb).cameras().intrinsics[:, 0, 0]
         true = sequence.intrinsics[:, 0, 0]
@@ -74,11 +89,18 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=None, help="only the first N benchmark clips")
     parser.add_argument("--held-out", action="store_true",
                         help="the benchmark's clip definitions from seeds it never uses, instead of its clips")
+    parser.add_argument("--gate-seed", type=int, default=None, metavar="N",
+                        help="the benchmark's clip definitions from seeds N + index (a judge's gate set)")
     args = parser.parse_args()
+    if args.gate_seed is not None and args.held_out:
+        parser.error("--held-out and --gate-seed name two different clip sets; pass one")
+    if args.gate_seed is not None and args.gate_seed not in GATE_SEEDS:
+        parser.error(f"--gate-seed must lie in {GATE_SEEDS.start:,}-{GATE_SEEDS.stop - 1:,}, got {args.gate_seed:,}")
 
     model = D4RT.from_pretrained(args.checkpoint)
-    key = HELD_OUT if args.held_out else BENCHMARK
-    result = {"checkpoint": args.checkpoint or "bundled", key: synthetic_focal_errors(model, args.limit, args.held_out),
+    key = HELD_OUT if args.held_out else gate_key(args.gate_seed) if args.gate_seed is not None else BENCHMARK
+    result = {"checkpoint": args.checkpoint or "bundled",
+              key: synthetic_focal_errors(model, args.limit, args.held_out, args.gate_seed),
               TUM_FOLDER: tum_focal(model)}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=1) + "\n")

@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from d4rt.errors import UserError
 from d4rt.evaluation import synthetic_benchmark
 from d4rt.evaluation.baselines import OraclePredictor
 from d4rt.evaluation.benchmarks import get_benchmark
@@ -28,6 +29,16 @@ def test_definition_is_frozen_and_varied():
     assert min(lo for lo, _ in fovs) == 30 and max(hi for _, hi in fovs) == 110
     assert {s.options.camera_motion for s in specs} == set(MOVING_CAMERA_MOTIONS)  # never static
     assert all(s.options.num_objects >= 4 and s.options.moving_fraction > 0.5 for s in specs)
+
+
+def test_a_gate_set_keeps_the_definitions_and_draws_new_scenes_from_its_own_seeds():
+    specs, gate = synthetic_benchmark.clip_specs(), synthetic_benchmark.gate_specs(11_097_000)
+    assert [s.seed for s in gate] == [11_097_000 + i for i in range(48)]
+    assert [replace(g, seed=s.seed) for g, s in zip(gate, specs)] == specs  # only the seeds differ
+    assert not synthetic_benchmark.scene_fingerprint(gate).matches(synthetic_benchmark.SCENE_FINGERPRINT)
+    for outside in (9_000_000, 12_000_000 - 47, synthetic_benchmark.BASE_SEED):
+        with pytest.raises(UserError, match="a gate seed must lie in 11,000,000-11,999,952"):
+            synthetic_benchmark.gate_specs(outside)
 
 
 def test_fingerprint_ignores_the_cpu_kernels_but_not_a_changed_scene():

@@ -85,18 +85,21 @@ def test_the_dense_head_predictor_reads_the_heads_depth_at_the_clip_size(tmp_pat
         depth_probe.DenseHeadPredictor(str(tmp_path / "plain"))
 
 
-def test_skip_leaves_out_the_first_clips_and_keeps_their_held_out_seeds(monkeypatch):
+def test_skip_leaves_out_the_first_clips_and_a_gate_seed_draws_the_gate_set(monkeypatch):
     from dataclasses import dataclass
 
     @dataclass
     class Spec:  # stands in for a clip definition: render() says which seed it was given
+        index: int
         seed: int
 
         def render(self):
             return self.seed
 
-    monkeypatch.setattr(depth_probe, "clip_specs", lambda: [Spec(i) for i in range(48)])
+    monkeypatch.setattr(depth_probe, "clip_specs", lambda: [Spec(i, i) for i in range(48)])
+    monkeypatch.setattr(depth_probe, "gate_specs", lambda gate: [Spec(i, gate + i) for i in range(48)])
     order = depth_probe.probe_indices()
     fresh = depth_probe.render_probe_clips(48, skip=16)
     assert fresh == [depth_probe.HELD_OUT_SEED + i for i in order[16:]]
     assert depth_probe.render_probe_clips(16) == [depth_probe.HELD_OUT_SEED + i for i in order[:16]]
+    assert depth_probe.render_probe_clips(32, gate_seed=11_097_000) == [11_097_000 + i for i in order[:32]]

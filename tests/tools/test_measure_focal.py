@@ -9,6 +9,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from d4rt.evaluation.synthetic_benchmark import FRAMES, clip_specs
 from d4rt.synthetic import render_clip
@@ -33,3 +34,18 @@ def test_held_out_focal_is_exact_on_the_oracle_and_drawn_from_unused_seeds():
     benchmark_first = clip_specs()[0].render()
     assert not np.array_equal(benchmark_first.rgb, clips[0].rgb)  # another scene of the same definition
     assert report["clips"][0]["size"] == [held_out[0].height, held_out[0].width]
+
+
+def test_a_gate_seed_measures_the_gate_set_and_refuses_a_second_clip_set(monkeypatch, capsys):
+    gate = measure_focal.gate_specs(11_097_000)[:1]
+    clip = render_clip(gate[0].seed, FRAMES, gate[0].height, gate[0].width, **vars(gate[0].options))
+    oracle = SimpleNamespace(reconstruct=lambda rgb: clip.reconstruction())
+    report = measure_focal.synthetic_focal_errors(oracle, limit=1, seed_base=11_097_000)
+    assert report["clips"][0]["name"] == gate[0].name and report["median_focal_error"] < 1e-5
+    assert measure_focal.gate_key(11_097_000) == "synthetic-gate-11097000"
+    for argv, message in ((["--held-out", "--gate-seed", "11097000"], "two different clip sets"),
+                          (["--gate-seed", "9000000"], "--gate-seed must lie in 11,000,000-11,999,952")):
+        monkeypatch.setattr("sys.argv", ["measure_focal.py", "--out", "unused.json", *argv])
+        with pytest.raises(SystemExit):
+            measure_focal.main()
+        assert message in capsys.readouterr().err

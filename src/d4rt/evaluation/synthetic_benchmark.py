@@ -31,10 +31,11 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from d4rt.errors import UserError
 from d4rt.evaluation.readers.synthetic import NUM_TRACKS, sequence_from_clip
 from d4rt.evaluation.sequence import EvalSequence
 from d4rt.synthetic.generate import render_clip
@@ -83,6 +84,20 @@ def clip_specs() -> list[SyntheticClipSpec]:
         )
         specs.append(SyntheticClipSpec(i, BASE_SEED + i, *SIZES[i % len(SIZES)], options))
     return specs
+
+
+# Gate sets (docs/training.md, "Gate sets drawn per judgment"): the 48 definitions drawn from seeds GATE_SEED + index,
+# for one ship judgment each. A range no benchmark, probe or training stream draws from (probes use 6-9 and 12-13
+# million, the benchmark 20,251,000 + index; training clips take random 31-bit seeds).
+GATE_SEEDS = range(11_000_000, 12_000_000 - NUM_CLIPS + 1)
+
+
+def gate_specs(gate_seed: int) -> list[SyntheticClipSpec]:
+    """The 48 clip definitions with clip i's seed replaced by ``gate_seed`` + i (a judge's gate set)."""
+    if gate_seed not in GATE_SEEDS:
+        raise UserError(f"a gate seed must lie in {GATE_SEEDS.start:,}-{GATE_SEEDS.stop - 1:,} (no other stream draws "
+                        f"from there), got {gate_seed:,}")
+    return [replace(spec, seed=gate_seed + spec.index) for spec in clip_specs()]
 
 
 @dataclass(frozen=True)
