@@ -154,7 +154,9 @@ for w in $AVERAGE_WEIGHTS; do
     python tools/average_weights.py ${S[@]} --weights $(python -c "print(*[1] * ${#S[@]})") --out $J/avg-1 \
       >> $J/judge.log 2>&1
   else
-    python tools/average_weights.py $J/start ${S[@]} \
+    # The start may be a shipped model whose judge chose another pairing than the run's; the probe scores every
+    # pairing and PAIRING=best writes the candidate's own, so the averages take the training recipe's.
+    python tools/average_weights.py $J/start ${S[@]} --pose-pairs adjacent \
       --weights $(python -c "print(1 - $w, *[$w / ${#S[@]}] * ${#S[@]})") --out $J/avg-$w >> $J/judge.log 2>&1
   fi
 done

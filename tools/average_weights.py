@@ -9,7 +9,8 @@ tensors, with two exceptions, the parts the trainer's ``init_from`` may add to a
 head and the dense depth head (a training aid; stage 67). A model trained with such a part from one without it may
 be averaged with it. The average then has the part, whose tensors come from the checkpoints that have it (their
 weights renormalised among them); its config is that of the first checkpoint with the pose head (its
-``pose_pairs`` too, which they must share) with every added part that any checkpoint has. Weights must be positive
+``pose_pairs`` too, which they must share unless ``--pose-pairs`` names the average's) with every added part that
+any checkpoint has. Weights must be positive
 and are normalised to sum to 1. Writes ``config.json`` and ``model.safetensors`` (D4RT.from_pretrained reads them)
 and prints what it averaged.
 """
@@ -22,7 +23,7 @@ from pathlib import Path
 import torch
 from safetensors.torch import save_file
 
-from d4rt.config import D4RTConfig
+from d4rt.config import POSE_PAIRS, D4RTConfig
 from d4rt.errors import UserError
 from d4rt.model.weights import ADDABLE_PARTS, CONFIG_NAME, WEIGHTS_NAME, read_checkpoint
 
@@ -44,14 +45,19 @@ def _shared_config(configs: list[D4RTConfig]) -> D4RTConfig:
     return (headed or configs)[0].replace(dense_depth_head=any(c.dense_depth_head for c in configs))
 
 
-def average(directories: list[Path], weights: list[float]) -> tuple[dict[str, torch.Tensor], str]:
+def average(directories: list[Path], weights: list[float],
+            pose_pairs: str | None = None) -> tuple[dict[str, torch.Tensor], str]:
     """(averaged tensors, the averaged model's config.json text); float tensors averaged in float64 and stored
-    in their own dtype, others (none in D4RT today) required equal."""
+    in their own dtype, others (none in D4RT today) required equal. ``pose_pairs``: the average's camera
+    pairing, whatever the checkpoints name (a pairing is a choice made at inference: a judge with
+    PAIRING=best picks one per model, so a shipped model may name another than the run it is averaged with)."""
     if len(directories) != len(weights) or len(directories) < 2:
         raise UserError("give at least two checkpoints and one weight per checkpoint")
     if any(w <= 0 for w in weights):
         raise UserError(f"weights must be positive, got {weights}")
     configs, states = zip(*(read_checkpoint(d) for d in directories))
+    if pose_pairs is not None:
+        configs = [c.replace(pose_pairs=pose_pairs) for c in configs]
     config = _shared_config(list(configs))
     keys = sorted(set().union(*(s.keys() for s in states)))
     if any(not key.startswith(tuple(ADDABLE_PARTS.values())) for s in states for key in set(keys) - s.keys()):
@@ -75,9 +81,11 @@ def main() -> None:
     parser.add_argument("checkpoints", nargs="+", type=Path, help="directories written by save_pretrained")
     parser.add_argument("--weights", nargs="+", type=float, required=True, help="one per checkpoint")
     parser.add_argument("--out", type=Path, required=True, help="directory to write")
+    parser.add_argument("--pose-pairs", choices=POSE_PAIRS, default=None,
+                        help="the average's camera pairing, whatever the checkpoints name (default: theirs, shared)")
     args = parser.parse_args()
     try:
-        tensors, config = average(args.checkpoints, args.weights)
+        tensors, config = average(args.checkpoints, args.weights, args.pose_pairs)
     except UserError as error:
         parser.error(str(error))
     args.out.mkdir(parents=True, exist_ok=True)

@@ -78,6 +78,9 @@ def test_a_model_that_added_the_pose_head_averages_with_its_start(tmp_path):
     other_pairs = D4RT(headed_config.replace(pose_pairs="first")).save_pretrained(tmp_path / "other")
     with pytest.raises(UserError, match="different pose_pairs"):
         average_weights.average([start, tuned, other_pairs], [1.0, 1.0, 1.0])
+    # Named for the average, the pairing (an inference choice) no longer has to be shared.
+    named, named_config = average_weights.average([tuned, other_pairs], [1.0, 1.0], pose_pairs="graph")
+    assert D4RTConfig.from_json(named_config) == headed_config.replace(pose_pairs="graph")
     deeper = D4RT(D4RTConfig.preset("tiny", decoder_depth=2, relative_pose_head=True)).save_pretrained(tmp_path / "d")
     with pytest.raises(UserError, match="different configs"):
         average_weights.average([start, deeper], [0.5, 0.5])
