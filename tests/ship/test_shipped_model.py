@@ -32,7 +32,10 @@ from subprocess_budget import budget
 ROOT = Path(__file__).resolve().parents[2]
 EXPECTED = Path(__file__).with_name("expected-subset.json")
 CARD_EVAL = ROOT / "docs" / "model-card" / "eval-synthetic-dynamic-v1.json"
-SHIP_CONFIG = ROOT / "configs" / "ship-tiny-cpu-stage86-camera-pair.yaml"
+SHIP_CONFIG = ROOT / "configs" / "ship-tiny-cpu-stage95-aligned-depth-long.yaml"
+# The camera pairing the ship judge chose on held-out clips (benchmarks/judge_pairing.py writes it into the shipped
+# config.json); the training config names the pairing its run used.
+SHIP_POSE_PAIRS = "graph"
 SUBSET_CLIPS = 1
 RTOL = ATOL = 1e-3
 MAX_BYTES = 30 * 2**20
@@ -61,8 +64,8 @@ def test_bundled_model_loads_strictly_and_is_small():
     assert sum(p.stat().st_size for p in directory.iterdir()) < MAX_BYTES
     model = D4RT.from_pretrained()  # strict: every key and shape checked (tests/model/test_weights.py)
     assert not model.training
-    # It is the model the shipped config trains: the tiny preset with the config's overrides.
-    trained = TrainConfig.load(SHIP_CONFIG).model.build()
+    # It is the model the shipped config trains: the tiny preset with the config's overrides, at the judge's pairing.
+    trained = TrainConfig.load(SHIP_CONFIG).model.build().replace(pose_pairs=SHIP_POSE_PAIRS)
     assert model.config == trained == D4RTConfig.load(directory / "config.json")
     assert all(np.isfinite(p.detach().numpy()).all() for p in model.parameters())
 
