@@ -48,6 +48,8 @@
 # (s&s) on its first 32 depth-probe clips lower with the upper end of the paired 95% interval below 0; a candidate that
 # passes both gets the benchmark's eval, which must keep the met camera target ($J/verdict: SHIP or STOP). Why: the
 # shipped weights were chosen through the benchmark's gates, so every later model met them on a selected draw (stage 95).
+# Run a copy of this file (cp benchmarks/judge_guarded_stage.sh $J/) when the tree may change while a judge runs:
+# bash reads a script as it goes, and an edit made meanwhile is read at shifted offsets (stage 95's gate judgment).
 # Resumable (stage 41 on): every camera probe is kept per checkpoint in $J/probe-cache (the figures of one model do not
 # depend on the others probed with it; the judged checkpoints and the start are probed on the second core while
 # training runs), and a stopped judge started again skips each average, focal measurement and eval it already wrote
