@@ -185,6 +185,8 @@ focal_below() {  # NEW REF KEY LABEL [STAT]: exit 0 when NEW's synthetic STAT (m
 import json, sys
 new, ref, key, label = sys.argv[1:5]
 stat = f"{sys.argv[5] if len(sys.argv) > 5 else 'median'}_focal_error"
+if stat not in ("median_focal_error", "mean_focal_error"):
+    sys.exit(f"HELD_OUT_FOCAL must be median or mean, not {stat.split('_')[0]!r}")
 n = json.load(open(new))
 a, t = n[key][stat], n["tum-fr3-long-office-household"]["relative_error"]
 try:  # a number is a target to meet
