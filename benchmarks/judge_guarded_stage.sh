@@ -59,6 +59,10 @@
 # training runs), and a stopped judge started again skips each average, focal measurement and eval it already wrote
 # (and resumes a stopped eval from the sequences it finished: d4rt eval --resume).
 set -e
+case "${HELD_OUT_FOCAL:-median}" in  # checked before anything runs: inside focal_below a bad value would read as a FAIL
+  median|mean) ;;
+  *) echo "judge_guarded_stage.sh: HELD_OUT_FOCAL must be median or mean, not '$HELD_OUT_FOCAL'" >&2; exit 2 ;;
+esac
 EVERY=${CAMERA_EVERY:-3}
 export AVERAGE_WEIGHTS=${AVERAGE_WEIGHTS:-0.25 0.5 0.75}
 PROBE_STEPS=${PROBE_STEPS:-2500 3000 3500 4000}
@@ -185,8 +189,6 @@ focal_below() {  # NEW REF KEY LABEL [STAT]: exit 0 when NEW's synthetic STAT (m
 import json, sys
 new, ref, key, label = sys.argv[1:5]
 stat = f"{sys.argv[5] if len(sys.argv) > 5 else 'median'}_focal_error"
-if stat not in ("median_focal_error", "mean_focal_error"):
-    sys.exit(f"HELD_OUT_FOCAL must be median or mean, not {stat.split('_')[0]!r}")
 n = json.load(open(new))
 a, t = n[key][stat], n["tum-fr3-long-office-household"]["relative_error"]
 try:  # a number is a target to meet
