@@ -128,7 +128,7 @@ def test_bf16_answers_stay_within_stated_tolerance_of_fp32():
     """d4rt reconstruct's default on an AMX / AVX512-BF16 CPU is bf16 autocast: on a synthetic clip with the
     shipped model its depth and cameras stay within the tolerance docs/performance.md states of the
     float32 answers, and are as accurate against the exact ground truth; --dtype fp32 is plain float32.
-    Stated: depth 5e-3, confidence 3e-3, cameras 5e-3 (relative norm; the shipped model chains its cameras from
+    Stated: depth and confidence 3e-3, cameras 5e-3 (relative norm; the shipped model chains its cameras from
     adjacent frame pairs; stage 101's weights measured depth 2.0e-3, confidence 1.2e-3, cameras 2.2e-3 here on an
     AVX512-BF16 CPU and 1.8e-3, 1.2e-3, 2.4e-3 on an AMX one; stage 103's 2.4e-3, 1.0e-3, 3.5e-3 on the AMX one;
     the average of stages 103 and 104 3.2e-3, 1.2e-3, 2.9e-3 on the AMX one; stage 107's soup 2.4e-3, 1.1e-3,
@@ -159,7 +159,7 @@ def test_bf16_answers_stay_within_stated_tolerance_of_fp32():
         ok = np.isfinite(fp32[key]) & np.isfinite(bf16[key])
         return np.linalg.norm((bf16[key] - fp32[key])[ok]) / np.linalg.norm(fp32[key][ok])
 
-    assert relative("depth") < 5e-3 and relative("confidence") < 3e-3 and relative("cam_to_world") < 5e-3
+    assert relative("depth") < 3e-3 and relative("confidence") < 3e-3 and relative("cam_to_world") < 5e-3
     ate = {name: pose_metrics(answer["cam_to_world"], clip.cam_to_world)["ate"] for name, answer in
            (("fp32", fp32), ("bf16", bf16))}
     assert abs(ate["bf16"] - ate["fp32"]) < 0.05 * ate["fp32"], ate
