@@ -58,6 +58,11 @@
 # BENCHMARK_NOT_WORSE="rpe_rot pc_l1" in the environment (stage 106 on) adds to the verdict: each named aggregate of the
 # candidate's benchmark eval (lower is better) at most the shipped weights' (docs/model-card/eval-synthetic-dynamic-v1.json).
 # Why: the average shipped by stage 104's rule, which weighed neither, read worse on both on most clips.
+# DEPTH_BY=held-out in the environment (stage 109 on) makes --focal-over-averages choose, of the w that kept the camera
+# and the held-out focal, the one whose pooled held-out depth AbsRel (s&s) is lowest (tools/depth_probe.py, its first
+# DEPTH_BY_CLIPS held-out clips, default 16), and stop when none reads below the start's. Why: the largest such w was
+# S itself in stage 108, which read no better than the start on the gate set's depth; the held-out clips are not the
+# gate set's, so choosing on them leaves the gate set unseen.
 # Run a copy of this file (cp benchmarks/judge_guarded_stage.sh $J/) when the tree may change while a judge runs:
 # bash reads a script as it goes, and an edit made meanwhile is read at shifted offsets (stage 95's gate judgment).
 # Resumable (stage 41 on): every camera probe is kept per checkpoint in $J/probe-cache (the figures of one model do not
@@ -211,14 +216,41 @@ P
 if [ "$EACH" = --focal-over-averages ]; then
   focal_once --held-out --checkpoint $J/start --out $J/focal-held-out-start.json
   C=none
+  PASSED=""
   for w in $W; do
     focal_once --held-out --checkpoint $J/avg-$w --out $J/focal-held-out-avg-$w.json
     if focal_below $J/focal-held-out-avg-$w.json $J/focal-held-out-start.json synthetic-held-out \
         "held-out focal, w = $w against the start" ${HELD_OUT_FOCAL:-median} ${HELD_OUT_FOCAL_MARGIN:-0}; then
-      C=$w; break; fi
+      PASSED="$PASSED $w"
+      [ "${DEPTH_BY:-}" = held-out ] || { C=$w; break; }
+    fi
   done
+  if [ "${DEPTH_BY:-}" = held-out ] && [ -n "$PASSED" ]; then
+    # Of the w that kept camera and held-out focal, the one whose pooled held-out depth AbsRel (s&s) is lowest, and
+    # below the start's (none: stop before the gate set). Two probes at a time, one thread each.
+    depth_file() { echo $J/depth-held-out-$1.json; }
+    for m in start $(for w in $PASSED; do echo avg-$w; done); do
+      [ -f $(depth_file $m) ] || python tools/depth_probe.py $J/$m --clips ${DEPTH_BY_CLIPS:-16} \
+        --out $(depth_file $m) > $J/depth-held-out-$m.log 2>&1 &
+      [ $(jobs -rp | wc -l) -ge 2 ] && wait -n
+    done
+    wait
+    C=$(python - $J/start $(depth_file start) $(for w in $PASSED; do echo $J/avg-$w $(depth_file avg-$w); done) \
+        2>> $J/judge.log <<'P'
+import json, sys
+pairs = list(zip(sys.argv[1::2], sys.argv[2::2]))  # (checkpoint, its held-out depth probe); the start first
+absrel = {c: json.load(open(f))["models"][c]["abs_rel[scale&shift]"] for c, f in pairs}
+start = pairs[0][0]
+for c, a in absrel.items():
+    print(f"held-out depth AbsRel (s&s) {a:.4f}: {c}", file=sys.stderr)
+best = min((c for c, _ in pairs[1:]), key=absrel.get)
+print(best.rsplit("avg-", 1)[1] if absrel[best] < absrel[start] else "none")
+P
+)
+  fi
   echo "w=$C $(date -u)" >> $J/judge.log
-  [ "$C" = none ] && { echo "stopped: no average that kept the camera beat the start's held-out focal" >> $J/judge.log; exit 0; }
+  [ "$C" = none ] && { echo "stopped: no average that kept the camera beat the start's held-out focal$([ -n "${PASSED:-}" ] \
+    && echo " and depth")" >> $J/judge.log; exit 0; }
   W=$C
 else
   W=${W%% *}  # the rule of stages 29-31: the largest w that kept the camera
