@@ -62,7 +62,8 @@
 # and the held-out focal, the one whose pooled held-out depth AbsRel (s&s) is lowest (tools/depth_probe.py, its first
 # DEPTH_BY_CLIPS held-out clips, default 16), and stop when none reads below the start's. Why: the largest such w was
 # S itself in stage 108, which read no better than the start on the gate set's depth; the held-out clips are not the
-# gate set's, so choosing on them leaves the gate set unseen.
+# gate set's, so choosing on them leaves the gate set unseen. Caveat (stage 109): with 16 clips the pooled figure
+# follows clip 34 (an outdoor clip at AbsRel (s&s) 7-8), so it chose on one clip there; stage 110's rule leaves it off.
 # Run a copy of this file (cp benchmarks/judge_guarded_stage.sh $J/) when the tree may change while a judge runs:
 # bash reads a script as it goes, and an edit made meanwhile is read at shifted offsets (stage 95's gate judgment).
 # Resumable (stage 41 on): every camera probe is kept per checkpoint in $J/probe-cache (the figures of one model do not
