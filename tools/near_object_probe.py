@@ -15,8 +15,15 @@ degrees, half the camera paths walked; every other scene option drawn by the gen
 least 5% of their pixels on bodies nearer than NEAR_DEPTH. Each checkpoint's depth maps (``Reconstruction.depth``
 through the evaluation predictor) get the benchmark's per-sequence L1 scale and shift; then, per body with at least
 MIN_PIXELS near pixels, the median of log(aligned predicted / true depth) over its near pixels. Reported per group
-(resting / floating): how many bodies, the median of |that log ratio| and the median ratio itself (> 1: read too far).
-Writes JSON (per checkpoint the two groups and per-body rows) and prints one line per checkpoint.
+(resting / floating / articulated: the parts of the generator's arm, grounded through its base): how many bodies, the median of |that log ratio| and the median ratio itself (> 1: read too far).
+Writes JSON (per checkpoint the groups and per-body rows) and prints one line per checkpoint.
+
+With ``--size-prior-floor`` (no checkpoint) it instead scores, on the first 16 held-out clips of
+``tools/depth_probe.py`` (drawn like synthetic-dynamic-v1), the depth maps of an observer that knows every depth
+exactly except each floating body's scale: it sees the body's shape and image size and takes the size prior's median,
+so every pixel of a floating body of half-extents h is read at its true depth x m / g(h), g the geometric mean of the
+half-extents and m the median of g over the generator's own shape draws. What AbsRel (s&s) that ambiguity alone
+leaves when nothing else (shadows, occlusion) resolves it.
 """
 
 from __future__ import annotations
@@ -35,13 +42,23 @@ from d4rt.evaluation.metrics.depth import l1_scale_and_shift
 from d4rt.evaluation.predictions import d4rt_predictor
 from d4rt.evaluation.synthetic_benchmark import sequence_from_clip
 from d4rt.synthetic.clip import Clip
+from d4rt.evaluation.predictions import Prediction
 from d4rt.synthetic.generate import render_clip
+from d4rt.synthetic.sampling import _random_shape
 
 SEED = 14_000_000
 NEAR_DEPTH = 2.5  # metres: a body this near fills much of a frame at these fields of view
 MIN_NEAR_FRACTION = 0.05  # of a clip's pixels, on near bodies, for the clip to be kept
 MIN_PIXELS = 50  # near pixels of one body for its row
+GROUPS = ("resting", "floating", "articulated")
 RENDER = dict(frames=8, height=80, width=80, fov_degrees=(20.0, 120.0), walk_fraction=0.5)
+
+
+def body_group(clip: Clip, body: int) -> str:
+    """"articulated" for the parts of the generator's arm (grounded through its base), else "resting" or "floating"."""
+    if clip.scene.bodies[body].name.startswith("arm"):
+        return "articulated"
+    return "resting" if is_resting(clip, body) else "floating"
 
 
 def is_resting(clip: Clip, body: int, tol: float = 1e-3) -> bool:
@@ -70,14 +87,45 @@ def body_log_ratios(pred: np.ndarray, true: np.ndarray, object_ids: np.ndarray) 
 
 
 def summarise(rows: list[dict]) -> dict:
-    """Per group (resting / floating): bodies, median |log ratio|, median ratio."""
+    """Per group (resting / floating / articulated): bodies, median |log ratio|, median ratio."""
     out = {}
-    for group in ("resting", "floating"):
+    for group in GROUPS:
         logs = np.array([r["log_ratio"] for r in rows if r["group"] == group])
         out[group] = {"bodies": len(logs),
                       "median_abs_log_ratio": round(float(np.median(np.abs(logs))), 4) if len(logs) else None,
                       "median_ratio": round(float(np.exp(np.median(logs))), 3) if len(logs) else None}
     return out
+
+
+def size_prior_median(draws: int = 20_000, seed: int = 0) -> float:
+    """m: the median over the generator's random shapes of the geometric mean of their half-extents (metres)."""
+    rng = np.random.default_rng(seed)
+    return float(np.median([np.exp(np.mean(np.log(_random_shape(rng)[1]))) for _ in range(draws)]))
+
+
+def size_prior_depth(clip: Clip, median_size: float) -> np.ndarray:
+    """(T, H, W): the clip's true depth with each floating body's pixels scaled by median_size / g(its half-extents)
+    (the module docstring's observer)."""
+    depth = clip.depth.copy()
+    for body in range(1, len(clip.scene.bodies)):
+        if body_group(clip, body) == "floating":
+            size = float(np.exp(np.mean(np.log(clip.scene.bodies[body].half_extents))))
+            depth[clip.object_ids == body] *= median_size / size
+    return depth
+
+
+def size_prior_floor() -> dict:
+    """The size-prior observer scored as tools/depth_probe.py scores a checkpoint, on its first 16 held-out clips."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import depth_probe
+
+    median_size = size_prior_median()
+
+    class Observer:
+        def predict(self, sequence, tasks):
+            return Prediction(depth=size_prior_depth(sequence.clip, median_size))
+
+    return {"median_size": round(median_size, 4)} | depth_probe.probe(Observer(), depth_probe.render_probe_clips(16))
 
 
 def near_clips(count: int) -> list[tuple[int, Clip]]:
@@ -95,7 +143,9 @@ def near_clips(count: int) -> list[tuple[int, Clip]]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("checkpoints", nargs="+")
+    parser.add_argument("checkpoints", nargs="*")
+    parser.add_argument("--size-prior-floor", action="store_true",
+                        help="score the size-prior observer (module docstring) instead of checkpoints")
     parser.add_argument("--out", required=True)
     parser.add_argument("--clips", type=int, default=24, help="clips with near bodies to score (default 24)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
@@ -103,6 +153,16 @@ def main() -> None:
     if args.clips < 1:
         parser.error(f"--clips must be at least 1, got {args.clips}")
     torch.set_num_threads(args.threads)
+    if args.size_prior_floor:
+        if args.checkpoints:
+            parser.error("--size-prior-floor scores no checkpoint; give none")
+        floor = size_prior_floor()
+        Path(args.out).write_text(json.dumps(floor, indent=1) + "\n")
+        print("size-prior observer: AbsRel (s&s)", floor["abs_rel[scale&shift]"], "median clip",
+              floor["median_clip_abs_rel[scale&shift]"], "delta<1.25 (s&s)", floor["delta<1.25[scale&shift]"])
+        return
+    if not args.checkpoints:
+        parser.error("give at least one checkpoint (or --size-prior-floor)")
     try:  # every checkpoint loads (strictly) before anything is rendered: a bad path fails in one line, at once
         predictors = {checkpoint: d4rt_predictor(checkpoint) for checkpoint in args.checkpoints}
     except UserError as error:
@@ -118,7 +178,7 @@ def main() -> None:
             with torch.no_grad():
                 depth = predictor.predict(sequence, {"depth"}).depth
             for body, log_ratio in body_log_ratios(depth, clip.depth, clip.object_ids).items():
-                rows.append({"seed": seed, "body": body, "group": "resting" if is_resting(clip, body) else "floating",
+                rows.append({"seed": seed, "body": body, "group": body_group(clip, body),
                              "log_ratio": round(log_ratio, 4)})
         report["models"][str(checkpoint)] = summary = summarise(rows) | {"bodies": rows}
         print(checkpoint, *(f"{g}: {s['bodies']} bodies, median |log| {s['median_abs_log_ratio']}, "

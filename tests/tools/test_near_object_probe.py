@@ -49,12 +49,16 @@ def pose(z: float, tilt_degrees: float = 0.0) -> np.ndarray:
 
 
 def test_resting_bodies_sit_upright_at_their_half_height():
-    body = SimpleNamespace(half_extents=[0.3, 0.2, 0.4])
+    body = SimpleNamespace(half_extents=[0.3, 0.2, 0.4], name="box")
     frames = lambda *poses: np.stack([np.stack([np.eye(4), p]) for p in poses])  # (T, 2, 4, 4): environment, body
     clip = lambda *poses: SimpleNamespace(object_to_world=frames(*poses), scene=SimpleNamespace(bodies=[None, body]))
     assert probe.is_resting(clip(pose(0.4), pose(0.4)), 1)
     assert not probe.is_resting(clip(pose(0.4), pose(0.9)), 1)  # lifted in the second frame
     assert not probe.is_resting(clip(pose(0.4), pose(0.4, tilt_degrees=20)), 1)  # tipped over
+    assert probe.body_group(clip(pose(0.4), pose(0.4)), 1) == "resting"
+    assert probe.body_group(clip(pose(0.4), pose(0.9)), 1) == "floating"
+    body.name = "arm_link1"  # the arm's parts are grounded through its base, lifted or not
+    assert probe.body_group(clip(pose(0.4), pose(0.9)), 1) == "articulated"
 
 
 def test_summary_counts_and_medians_by_group():
@@ -63,3 +67,15 @@ def test_summary_counts_and_medians_by_group():
     out = probe.summarise(rows)
     assert out["floating"] == {"bodies": 3, "median_abs_log_ratio": round(np.log(2.0), 4), "median_ratio": 2.0}
     assert out["resting"]["bodies"] == 1 and out["resting"]["median_ratio"] == pytest.approx(np.exp(0.1), abs=1e-3)
+
+
+def test_the_size_prior_observer_rescales_floating_bodies_only():
+    depth, ids = scene_depth()
+    bodies = [None, SimpleNamespace(half_extents=[0.2, 0.2, 0.2], name="sphere"),
+              SimpleNamespace(half_extents=[0.1, 0.4, 0.2], name="box")]
+    frames = np.stack([np.stack([np.eye(4), pose(1.0), pose(0.2)])] * 2)  # body 1 floats; body 2 rests at 0.2
+    clip = SimpleNamespace(depth=depth, object_ids=ids, object_to_world=frames, scene=SimpleNamespace(bodies=bodies))
+    read = probe.size_prior_depth(clip, median_size=0.4)
+    assert np.allclose(read[ids == 1], 2.0)  # a 0.2 m body taken for a 0.4 m one: read twice as far
+    assert np.array_equal(read[ids != 1], depth[ids != 1])  # the environment and the resting body exactly
+    assert 0.15 < probe.size_prior_median(draws=2_000) < 0.65  # inside the generator's size range
