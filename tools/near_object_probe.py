@@ -37,14 +37,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from d4rt.errors import UserError
-from d4rt.evaluation.metrics.depth import l1_scale_and_shift
-from d4rt.evaluation.predictions import d4rt_predictor
-from d4rt.evaluation.synthetic_benchmark import sequence_from_clip
-from d4rt.synthetic.clip import Clip
-from d4rt.evaluation.predictions import Prediction
-from d4rt.synthetic.generate import render_clip
-from d4rt.synthetic.sampling import _random_shape
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from depth_probe import probe, render_probe_clips  # noqa: E402
+
+from d4rt.errors import UserError  # noqa: E402
+from d4rt.evaluation.metrics.depth import l1_scale_and_shift  # noqa: E402
+from d4rt.evaluation.predictions import Prediction, d4rt_predictor  # noqa: E402
+from d4rt.evaluation.synthetic_benchmark import sequence_from_clip  # noqa: E402
+from d4rt.synthetic.clip import Clip  # noqa: E402
+from d4rt.synthetic.generate import render_clip  # noqa: E402
+from d4rt.synthetic.sampling import _random_shape  # noqa: E402  (the generator's own size prior)
 
 SEED = 14_000_000
 NEAR_DEPTH = 2.5  # metres: a body this near fills much of a frame at these fields of view
@@ -116,16 +118,13 @@ def size_prior_depth(clip: Clip, median_size: float) -> np.ndarray:
 
 def size_prior_floor() -> dict:
     """The size-prior observer scored as tools/depth_probe.py scores a checkpoint, on its first 16 held-out clips."""
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import depth_probe
-
     median_size = size_prior_median()
 
     class Observer:
         def predict(self, sequence, tasks):
             return Prediction(depth=size_prior_depth(sequence.clip, median_size))
 
-    return {"median_size": round(median_size, 4)} | depth_probe.probe(Observer(), depth_probe.render_probe_clips(16))
+    return {"median_size": round(median_size, 4)} | probe(Observer(), render_probe_clips(16))
 
 
 def near_clips(count: int) -> list[tuple[int, Clip]]:
