@@ -82,9 +82,8 @@ def body_log_ratios(pred: np.ndarray, true: np.ndarray, object_ids: np.ndarray) 
     ratios = {}
     for body in np.unique(object_ids[near]):
         mask = near & (object_ids == body)
-        if mask.sum() >= MIN_PIXELS:
-            with np.errstate(invalid="ignore", divide="ignore"):
-                ratios[int(body)] = float(np.median(np.log(np.maximum(aligned[mask], 1e-6) / true[mask])))
+        if mask.sum() >= MIN_PIXELS:  # an aligned depth at or behind the camera counts as 1e-6 m: a large error, kept
+            ratios[int(body)] = float(np.median(np.log(np.maximum(aligned[mask], 1e-6) / true[mask])))
     return ratios
 
 
@@ -179,12 +178,13 @@ def main() -> None:
             for body, log_ratio in body_log_ratios(depth, clip.depth, clip.object_ids).items():
                 rows.append({"seed": seed, "body": body, "group": body_group(clip, body),
                              "log_ratio": round(log_ratio, 4)})
-        report["models"][str(checkpoint)] = summary = summarise(rows) | {"bodies": rows}
+        summary = summarise(rows)
+        report["models"][str(checkpoint)] = summary | {"bodies": rows}
         print(checkpoint, *(f"{g}: {s['bodies']} bodies, median |log| {s['median_abs_log_ratio']}, "
-                            f"median ratio {s['median_ratio']};" for g, s in summarise(rows).items()),
+                            f"median ratio {s['median_ratio']};" for g, s in summary.items()),
               f"({time.perf_counter() - start:.0f} s)", flush=True)
         Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()
