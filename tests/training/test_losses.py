@@ -551,3 +551,26 @@ def test_aligned_depth_term_with_the_scale_alone_prices_an_affine_answer_and_not
     assert d4rt_loss(affine, batch, shift_too)[1]["aligned_depth"].item() == pytest.approx(0.0, abs=1e-5)
     with pytest.raises(UserError, match="aligned_depth_alignment must be one of scale&shift, scale"):
         LossConfig(aligned_depth_alignment="median").validate()
+
+
+def test_aligned_depth_term_over_all_queries_prices_every_query_in_front_of_its_camera_under_one_fit_per_clip():
+    """With aligned_depth_queries "all" the AbsRel after the evaluation's L1 scale and shift covers every query whose
+    target lies in front of its camera t_cam, whatever its times; one behind the camera stays out."""
+    from d4rt.evaluation.metrics.depth import l1_scale_and_shift
+
+    z_true = torch.tensor([1.0, 2.0, 4.0, 8.0, 30.0, 5.0, -3.0])
+    z_pred = torch.tensor([0.6, 1.0, 2.5, 3.0, 9.0, 0.1, 2.0])
+    times = torch.tensor([[0, 0, 0], [1, 2, 1], [2, 2, 0], [3, 3, 3], [4, 0, 4], [0, 1, 0], [2, 2, 2]]).float()
+    n = len(z_true)
+    batch = on_axis_batch(z_true, times)
+    pred = perfect(batch) | {"points": torch.stack([torch.zeros(n), torch.zeros(n), z_pred], -1)[None]}
+    in_front = slice(0, 6)
+    normalised = z_pred / z_pred.abs().mean()
+    s, t = l1_scale_and_shift(normalised[in_front].double().numpy(), z_true[in_front].double().numpy())
+    expected = ((s * normalised[in_front] + t - z_true[in_front]).abs() / z_true[in_front]).mean().item()
+    all_queries = LossConfig(weight_aligned_depth=1.0, aligned_depth_queries="all")
+    assert d4rt_loss(pred, batch, all_queries)[1]["aligned_depth"].item() == pytest.approx(expected, rel=1e-4)
+    only_depth = d4rt_loss(pred, batch, LossConfig(weight_aligned_depth=1.0))[1]["aligned_depth"].item()
+    assert only_depth != pytest.approx(expected, rel=1e-2)  # two depth queries in front: a different fit and mean
+    with pytest.raises(UserError, match="aligned_depth_queries must be one of depth, all"):
+        LossConfig(aligned_depth_queries="near").validate()
