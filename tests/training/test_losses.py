@@ -553,24 +553,28 @@ def test_aligned_depth_term_with_the_scale_alone_prices_an_affine_answer_and_not
         LossConfig(aligned_depth_alignment="median").validate()
 
 
-def test_aligned_depth_term_over_all_queries_prices_every_query_in_front_of_its_camera_under_one_fit_per_clip():
-    """With aligned_depth_queries "all" the AbsRel after the evaluation's L1 scale and shift covers every query whose
-    target lies in front of its camera t_cam, whatever its times; one behind the camera stays out."""
+def test_aligned_depth_term_in_view_prices_the_queries_seen_in_their_own_frame_under_one_fit_per_clip():
+    """With aligned_depth_queries "in_view" the AbsRel after the evaluation's L1 scale and shift covers every query
+    with t_tgt = t_cam whose target lies in front of that camera and inside its image, whatever t_src; a query asked
+    in another frame's camera, one outside the image and one behind the camera stay out."""
     from d4rt.evaluation.metrics.depth import l1_scale_and_shift
 
-    z_true = torch.tensor([1.0, 2.0, 4.0, 8.0, 30.0, 5.0, -3.0])
-    z_pred = torch.tensor([0.6, 1.0, 2.5, 3.0, 9.0, 0.1, 2.0])
-    times = torch.tensor([[0, 0, 0], [1, 2, 1], [2, 2, 0], [3, 3, 3], [4, 0, 4], [0, 1, 0], [2, 2, 2]]).float()
+    z_true = torch.tensor([1.0, 2.0, 4.0, 8.0, 30.0, 5.0, 6.0, -3.0])
+    z_pred = torch.tensor([0.6, 1.0, 2.5, 3.0, 9.0, 0.1, 7.0, 2.0])
+    times = torch.tensor([[0, 0, 0], [1, 2, 2], [2, 0, 0], [3, 3, 3], [4, 1, 1], [0, 1, 0], [2, 2, 2],
+                          [2, 2, 2]]).float()
     n = len(z_true)
     batch = on_axis_batch(z_true, times)
+    batch["uv"] = torch.full((1, n, 2), 0.5)
+    batch["uv"][0, 6] = torch.tensor([1.2, 0.5])  # in front of camera 2 but outside its image
     pred = perfect(batch) | {"points": torch.stack([torch.zeros(n), torch.zeros(n), z_pred], -1)[None]}
-    in_front = slice(0, 6)
+    priced = slice(0, 5)
     normalised = z_pred / z_pred.abs().mean()
-    s, t = l1_scale_and_shift(normalised[in_front].double().numpy(), z_true[in_front].double().numpy())
-    expected = ((s * normalised[in_front] + t - z_true[in_front]).abs() / z_true[in_front]).mean().item()
-    all_queries = LossConfig(weight_aligned_depth=1.0, aligned_depth_queries="all")
-    assert d4rt_loss(pred, batch, all_queries)[1]["aligned_depth"].item() == pytest.approx(expected, rel=1e-4)
+    s, t = l1_scale_and_shift(normalised[priced].double().numpy(), z_true[priced].double().numpy())
+    expected = ((s * normalised[priced] + t - z_true[priced]).abs() / z_true[priced]).mean().item()
+    in_view = LossConfig(weight_aligned_depth=1.0, aligned_depth_queries="in_view")
+    assert d4rt_loss(pred, batch, in_view)[1]["aligned_depth"].item() == pytest.approx(expected, rel=1e-4)
     only_depth = d4rt_loss(pred, batch, LossConfig(weight_aligned_depth=1.0))[1]["aligned_depth"].item()
-    assert only_depth != pytest.approx(expected, rel=1e-2)  # two depth queries in front: a different fit and mean
-    with pytest.raises(UserError, match="aligned_depth_queries must be one of depth, all"):
-        LossConfig(aligned_depth_queries="near").validate()
+    assert only_depth != pytest.approx(expected, rel=1e-2)  # queries 0 and 3 alone: another fit and mean
+    with pytest.raises(UserError, match="aligned_depth_queries must be one of depth, in_view"):
+        LossConfig(aligned_depth_queries="all").validate()

@@ -82,11 +82,14 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   ``aligned_depth_alignment: scale`` the fit is the L1-optimal scale alone (``l1_scale``): the answers are then
   priced as proportional to the truth, where the protocol's shift lets them drift to merely affine. Measured (stage
   96, weight 1.0 against a control): held-out L3D +0.20, several times the scale-and-shift term's cost (+0.056).
-  With ``aligned_depth_queries: all`` every query whose target lies in front of its camera t_cam is priced, its z in
-  that camera, under one fit per clip (all cameras of a clip share one scale, as for L3D). Why: a uniform draw makes
-  about 2% of the queries depth queries, some 20 per clip, so the term rarely lands on a body near the camera, the
-  pixels that decide the worst clips (stage 112, docs/training.md); the same error divided by the true z weighs
-  those near points most.
+  With ``aligned_depth_queries: in_view`` every query with t_tgt = t_cam whose target lies in front of that camera
+  and inside its image (the depth some frame's depth map holds there, were the point not hidden) is priced, under
+  one fit per clip (all cameras of a clip share one scale, as for L3D). Why: a uniform draw makes about 2% of the
+  queries depth queries, some 20 per clip, so the term rarely lands on a body near the camera, the pixels that
+  decide the worst clips (stage 112, docs/training.md); the same error divided by the true z weighs those near points
+  most. Not every query: a point outside camera t_cam's view can lie just in front of its image plane, where the
+  division by its true z blows the error up (the term over all in-front queries ran twice the depth queries' on the
+  same batches, measured before stage 114).
 - *Dense depth* (not in paper; ``weight_dense_depth`` > 0, only for a model with ``dense_depth_head``): the
   head's log-depth of every input pixel against the log of the batch's ``depth`` maps, over the pixels with
   a true depth, each clip's errors centred on their clip mean before the L1: ``|e - mean_clip(e)|`` with
@@ -140,7 +143,7 @@ RAY_ANGLE_SPREADS = ("target", "geometric")
 # What the aligned-depth term fits per clip (LossConfig.aligned_depth_alignment).
 ALIGNED_DEPTH_ALIGNMENTS = ("scale&shift", "scale")
 # Which queries the aligned-depth term prices (LossConfig.aligned_depth_queries).
-ALIGNED_DEPTH_QUERIES = ("depth", "all")
+ALIGNED_DEPTH_QUERIES = ("depth", "in_view")
 # Guards a degenerate all-zero prediction only; real scenes are many orders of magnitude deeper.
 _MIN_SCALE = 1e-12
 # Lowest normalised depth the log-depth term takes a log of (1/1000 of the clip's mean depth).
@@ -168,8 +171,9 @@ class LossConfig:
         protocol's, as the benchmark) or "scale" (the L1-optimal scale alone, so the answers are priced as
         proportional to the truth rather than merely affine to it; it cost the 3D points more, stage 96).
     aligned_depth_queries: (not in paper) which queries that term prices: "depth", the depth queries
-        (t_src = t_tgt = t_cam, about 2% of a uniform draw), or "all", every query whose target lies in front of
-        its camera t_cam, its z aligned by one fit per clip (module docstring; stage 114).
+        (t_src = t_tgt = t_cam, about 2% of a uniform draw), or "in_view", every query with t_tgt = t_cam whose
+        target lies in front of that camera and inside its image, under one fit per clip (module docstring; stage
+        114).
     weight_dense_depth: (not in paper) weight of the dense depth term (module docstring); 0 = off. Needs a
         model with ``dense_depth_head`` and batches with ``depth`` maps.
     weight_correspondence: (not in paper) weight of the correspondence-attention term (module docstring);
@@ -280,11 +284,13 @@ def log_depth_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
 
 
 def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.Tensor, mask: torch.Tensor,
-                       alignment: str = "scale&shift", which: str = "depth") -> tuple[torch.Tensor, torch.Tensor]:
+                       alignment: str = "scale&shift", which: str = "depth", target_uv: torch.Tensor | None = None
+                       ) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-query AbsRel of the depth queries after each clip's L1 alignment (module docstring).
 
     ``alignment`` is "scale&shift" (the benchmark's: :func:`l1_scale_and_shift`) or "scale" (:func:`l1_scale`, shift
-    0). ``which`` is "depth" (the depth queries) or "all" (every query, its z in its own camera t_cam).
+    0). ``which`` is "depth" (the depth queries) or "in_view" (the queries with t_tgt = t_cam whose ``target_uv``,
+    (B, N, 2) the true (u, v) in frame t_tgt, lies inside the image).
 
     pred, target: (B, N, 3) in each query's camera t_cam; queries: (B, N, 5) (u, v, t_src, t_tgt, t_cam); mask: (B, N)
     bool (queries with a true point). Returns ``(error (B, N), used (B, N) bool)``: ``used`` marks the priced queries
@@ -295,10 +301,12 @@ def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.
     model's depth scale 10-20 times in 600 steps (stage 93's first arm) and grew every scale-invariant term's
     gradient as much; divided by its own mean the term is exactly invariant to the prediction's scale.
     """
-    used = mask & (target[..., 2] > 0)
+    times = queries[..., 2:5]
+    used = mask & (target[..., 2] > 0) & (times[..., 1] == times[..., 2])
     if which == "depth":
-        times = queries[..., 2:5]
-        used = used & (times[..., 0] == times[..., 1]) & (times[..., 1] == times[..., 2])
+        used = used & (times[..., 0] == times[..., 1])
+    else:
+        used = used & ((target_uv >= 0) & (target_uv <= 1)).all(-1)
     pred_z, target_z = pred[..., 2] / mean_depth(pred, mask)[:, None], target[..., 2]
     scale, shift = torch.zeros(pred.shape[0], dtype=pred.dtype), torch.zeros(pred.shape[0], dtype=pred.dtype)
     for b in range(pred.shape[0]):
@@ -488,7 +496,8 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         total = total + config.weight_log_depth * optional_terms["log_depth"]
     if config.weight_aligned_depth > 0:
         aligned_depth, used = aligned_depth_loss(p["points"], target_points, batch["queries"], valid,
-                                                    config.aligned_depth_alignment, config.aligned_depth_queries)
+                                                    config.aligned_depth_alignment, config.aligned_depth_queries,
+                                                    batch["uv"])
         optional_terms["aligned_depth"] = masked_mean(aligned_depth, used)
         total = total + config.weight_aligned_depth * optional_terms["aligned_depth"]
     if config.weight_ray_angle > 0:
