@@ -286,7 +286,7 @@ def log_depth_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
 def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.Tensor, mask: torch.Tensor,
                        alignment: str = "scale&shift", which: str = "depth", target_uv: torch.Tensor | None = None
                        ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per-query AbsRel of the depth queries after each clip's L1 alignment (module docstring).
+    """Per-query AbsRel of the priced queries (``which``) after each clip's L1 alignment (module docstring).
 
     ``alignment`` is "scale&shift" (the benchmark's: :func:`l1_scale_and_shift`) or "scale" (:func:`l1_scale`, shift
     0). ``which`` is "depth" (the depth queries) or "in_view" (the queries with t_tgt = t_cam whose ``target_uv``,
