@@ -306,6 +306,8 @@ def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.
     if which == "depth":
         used = used & (times[..., 0] == times[..., 1])
     else:
+        if target_uv is None:
+            raise ValueError("aligned_depth_loss with which='in_view' needs target_uv (the batch's uv)")
         used = used & ((target_uv >= 0) & (target_uv <= 1)).all(-1)
     pred_z, target_z = pred[..., 2] / mean_depth(pred, mask)[:, None], target[..., 2]
     scale, shift = torch.zeros(pred.shape[0], dtype=pred.dtype), torch.zeros(pred.shape[0], dtype=pred.dtype)
