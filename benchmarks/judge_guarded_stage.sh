@@ -317,6 +317,7 @@ else
 fi
 if [ "$(cat $GATE)" = PASS ] && [ ! -f $J/eval.json ]; then
   d4rt eval --benchmark synthetic-dynamic-v1 --checkpoint $J/candidate --baseline oracle --baseline constant-depth \
+     --baseline static-camera --baseline constant-velocity \
      --out $J/eval.json --resume --no-progress > $J/eval.md 2>> $J/judge.log
   echo "eval done $(date -u)" >> $J/judge.log
 fi
@@ -325,9 +326,9 @@ if [ -n "${GATE_SEED:-}" ] && [ -f $J/eval.json ]; then
   python - $J/eval.json > $J/verdict <<'P'
 import json, os, sys
 sys.path.insert(0, "tools")
-from model_card import camera_target, with_colmap
+from model_card import camera_target, with_reference_methods
 new = json.load(open(sys.argv[1]))
-ratio, kept = camera_target(with_colmap(new))
+ratio, kept = camera_target(with_reference_methods(new))
 shipped = json.load(open("docs/model-card/eval-synthetic-dynamic-v1.json"))
 aggregate = lambda result: next(m for m in result["methods"] if m["name"] == "d4rt")["aggregate"]
 held = []  # BENCHMARK_NOT_WORSE: metrics (lower is better) whose mean may not rise above the shipped weights'

@@ -99,7 +99,8 @@ def test_cli_eval_with_a_checkpoint(tmp_path, tiny_checkpoint, capsys):
     assert "### d4rt" in printed and "| clip_1 |" in printed and f"wrote {out}" in printed
     results = json.loads(out.read_text())
     methods = {m["name"]: m for m in results["methods"]}
-    assert list(methods) == ["d4rt", "oracle", "constant-depth"]
+    # The pose floors run by default beside the depth floor, as the synthetic folder scores poses.
+    assert list(methods) == ["d4rt", "oracle", "constant-depth", "static-camera", "constant-velocity"]
     d4rt = methods["d4rt"]
     assert [s["name"] for s in d4rt["sequences"]] == ["clip_0", "clip_1"]
     # Each row carries its weight in the pooled depth figures: every pixel of these clips has a true depth.
@@ -138,7 +139,8 @@ def test_a_stopped_eval_resumes_to_the_same_json(tmp_path, tiny_checkpoint, monk
     monkeypatch.setattr(harness, "evaluate_sequence", killed_on_clip_2)
     assert main(args + ["--out", str(out)]) == 130  # Ctrl-C: "d4rt eval: interrupted"
     monkeypatch.setattr(harness, "evaluate_sequence", evaluate)
-    assert not out.exists() and len(list((tmp_path / "stopped.json.partial").glob("*.json"))) == 1 + 2 * 3
+    methods = 5  # d4rt and the default baselines: oracle, constant-depth, static-camera, constant-velocity
+    assert not out.exists() and len(list((tmp_path / "stopped.json.partial").glob("*.json"))) == 1 + 2 * methods
 
     scored = []
     def counted(benchmark, sequence, prediction):
@@ -147,7 +149,7 @@ def test_a_stopped_eval_resumes_to_the_same_json(tmp_path, tiny_checkpoint, monk
     monkeypatch.setattr(harness, "evaluate_sequence", counted)
     capsys.readouterr()
     assert main(args + ["--out", str(out), "--resume"]) == 0
-    assert scored == ["clip_2"] * 3 and "6 finished rows reused" in capsys.readouterr().out
+    assert scored == ["clip_2"] * methods and f"{2 * methods} finished rows reused" in capsys.readouterr().out
     assert json.loads(out.read_text())["methods"] == json.loads(straight.read_text())["methods"]
 
     # Rows of another checkpoint are refused in one line, not mixed in.
@@ -163,7 +165,7 @@ def test_a_stopped_eval_resumes_to_the_same_json(tmp_path, tiny_checkpoint, monk
     monkeypatch.setattr(harness, "evaluate_sequence", counted)
     scored.clear()
     assert main(["eval", "--data", str(data), "--checkpoint", str(other), "--out", str(out), "--no-progress"]) == 0
-    assert len(scored) == 9
+    assert len(scored) == 3 * methods
 
 
 def test_confidence_error_samples_follow_the_sequence_alignment():

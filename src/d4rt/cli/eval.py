@@ -25,8 +25,9 @@ def register(subparsers) -> None:
     p.add_argument("--format", choices=sorted(FORMATS), help="layout of --data without --benchmark (default: detected)")
     p.add_argument("--checkpoint", help="D4RT checkpoint directory (written by save_pretrained)")
     p.add_argument("--baseline", action="append", choices=BASELINES, default=None,
-                   help="baseline to run beside it (repeatable; default with a checkpoint: oracle and "
-                        "constant-depth where the benchmark scores depth)")
+                   help="baseline to run beside it (repeatable; default with a checkpoint: oracle, "
+                        "constant-depth where the benchmark scores depth, static-camera and constant-velocity "
+                        "where it scores poses)")
     p.add_argument("-o", "--out", type=Path, help="JSON results file (default: ./d4rt-eval-<benchmark>.json)")
     p.add_argument("--limit", type=int, help="evaluate only the first N sequences")
     p.add_argument("--device", default="cpu", help="torch device for the model")
@@ -64,7 +65,8 @@ def run(args) -> int:
     if baselines is None:
         if args.checkpoint is None:
             raise UserError("nothing to evaluate: pass --checkpoint and/or --baseline")
-        baselines = ["oracle"] + (["constant-depth"] if "depth" in benchmark.tasks else [])
+        baselines = (["oracle"] + (["constant-depth"] if "depth" in benchmark.tasks else [])
+                     + (["static-camera", "constant-velocity"] if "pose" in benchmark.tasks else []))
     predictors = ([d4rt_predictor(args.checkpoint, args.device, args.pose_pairs, args.flip_average)]
                   if args.checkpoint else [])
     predictors += [make_baseline(name) for name in dict.fromkeys(baselines)]

@@ -8,6 +8,11 @@
 - ``static-camera``: every frame's camera at the first one's pose (identity camera-to-world). After the
   Sim(3) alignment of the pose metrics its ATE is the spread of the true camera centres about their mean:
   the floor any pose method must beat (a model that ignores camera motion scores about this).
+- ``constant-velocity``: the camera walks a straight line at constant speed and never turns (camera i at
+  (0, 0, i), identity rotation). The Sim(3) alignment picks the line's direction, speed and start, so its ATE
+  is the RMS residual of the best straight-line-in-time fit of the true camera centres: on smooth paths far
+  below ``static-camera``'s, and the floor a pose method's ATE has to beat to show it read any motion from the
+  pixels. Its RPE-rot is the true frame-to-frame rotation, as ``static-camera``'s.
 - ``colmap``: COLMAP incremental SfM through pycolmap, camera poses only (``d4rt.evaluation.colmap_baseline``).
 """
 
@@ -20,7 +25,7 @@ from d4rt.evaluation.predictions import Prediction, Predictor, ReconstructionPre
 from d4rt.evaluation.sequence import EvalSequence
 from d4rt.reconstruction import Reconstruction
 
-BASELINES = ("oracle", "constant-depth", "static-camera", "colmap")
+BASELINES = ("oracle", "constant-depth", "static-camera", "constant-velocity", "colmap")
 
 
 class OraclePredictor:
@@ -59,6 +64,17 @@ class StaticCameraPredictor:
         return Prediction(cam_to_world=np.broadcast_to(np.eye(4), (sequence.num_frames, 4, 4)).copy())
 
 
+class ConstantVelocityPredictor:
+    """Camera i at (0, 0, i) looking along +z, for every frame; predicts nothing else."""
+
+    name = "constant-velocity"
+
+    def predict(self, sequence: EvalSequence, tasks: set[str]) -> Prediction:
+        cam_to_world = np.tile(np.eye(4), (sequence.num_frames, 1, 1))
+        cam_to_world[:, 2, 3] = np.arange(sequence.num_frames)
+        return Prediction(cam_to_world=cam_to_world)
+
+
 def make_baseline(name: str) -> Predictor:
     if name == "oracle":
         return OraclePredictor()
@@ -66,6 +82,8 @@ def make_baseline(name: str) -> Predictor:
         return ConstantDepthPredictor()
     if name == "static-camera":
         return StaticCameraPredictor()
+    if name == "constant-velocity":
+        return ConstantVelocityPredictor()
     if name == "colmap":
         from d4rt.evaluation.colmap_baseline import ColmapPredictor
 
