@@ -11,10 +11,12 @@ import json
 import os
 import sys
 
+from d4rt.config import POSE_PAIRS
+
 
 def pairing_figures(row: dict) -> dict[str, float]:
-    """Mean held-out ATE per pairing (the probe's static-camera reference left out)."""
-    return {pairs: ate["mean"] for pairs, ate in row["trajectory_ate"].items() if pairs != "static"}
+    """Mean held-out ATE per pairing (the probe's reference cameras, static and constant-velocity, left out)."""
+    return {pairs: ate["mean"] for pairs, ate in row["trajectory_ate"].items() if pairs in POSE_PAIRS}
 
 
 def best_pairing(row: dict) -> str:

@@ -28,7 +28,9 @@ t_src and t_cam). ``--frames 24 --time-stride 1`` asks 24-frame clips at synthet
 ``trajectory_ate``: the whole trajectory as ``Reconstruction.cameras`` returns it, for each ``pose_pairs``
 (``first``: the paper's recipe, every frame against camera 0; ``adjacent``: every frame against the previous one,
 the fits chained), scored like ``d4rt eval`` (ATE after Sim(3) alignment, in the clip's units): mean and median
-over the clips, beside a camera that never moves (the RMS distance of the true positions from their mean).
+over the clips, beside a camera that never moves (the RMS distance of the true positions from their mean) and
+one that walks a straight line at constant speed (``constant_velocity``: the RMS distance of the true positions
+from the best straight line in time; on these smooth paths the floor a camera has to beat).
 Writes JSON and prints it.
 """
 
@@ -42,6 +44,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from d4rt.evaluation.baselines import constant_velocity_poses
 from d4rt.evaluation.metrics.pose import pose_metrics, rotation_angle
 from d4rt.evaluation.synthetic_benchmark import clip_specs
 from d4rt.geometry.camera import cell_centres_uv
@@ -95,12 +98,14 @@ def by_gap(errors: np.ndarray, cosines: np.ndarray) -> list[dict]:
 
 def trajectory_ates(scene, clip) -> dict[str, float]:
     """ATE of the recipe's trajectory for each pose pairing, from the clip's encoded ``scene`` (anything with
-    ``query`` and ``num_frames``), and of a camera that never moves."""
+    ``query`` and ``num_frames``), of a camera that never moves and of one walking a straight line at constant
+    speed (the two pose floors of ``d4rt eval``)."""
     truth = clip.cam_to_world
     ates = {pairs: pose_metrics(Reconstruction(scene, clip.rgb, pose_pairs=pairs, progress=False)
                                 .cameras().cam_to_world, truth)["ate"] for pairs in POSE_PAIRS}
     centres = truth[:, :3, 3]
     ates["static"] = float(np.sqrt(((centres - centres.mean(0)) ** 2).sum(1).mean()))
+    ates["constant_velocity"] = pose_metrics(constant_velocity_poses(len(truth)), truth)["ate"]
     return ates
 
 

@@ -64,15 +64,20 @@ class StaticCameraPredictor:
         return Prediction(cam_to_world=np.broadcast_to(np.eye(4), (sequence.num_frames, 4, 4)).copy())
 
 
+def constant_velocity_poses(num_frames: int) -> np.ndarray:
+    """Camera i at (0, 0, i) looking along +z: (num_frames, 4, 4) camera-to-world."""
+    cam_to_world = np.tile(np.eye(4), (num_frames, 1, 1))
+    cam_to_world[:, 2, 3] = np.arange(num_frames)
+    return cam_to_world
+
+
 class ConstantVelocityPredictor:
-    """Camera i at (0, 0, i) looking along +z, for every frame; predicts nothing else."""
+    """A straight line walked at constant speed (``constant_velocity_poses``); predicts nothing else."""
 
     name = "constant-velocity"
 
     def predict(self, sequence: EvalSequence, tasks: set[str]) -> Prediction:
-        cam_to_world = np.tile(np.eye(4), (sequence.num_frames, 1, 1))
-        cam_to_world[:, 2, 3] = np.arange(sequence.num_frames)
-        return Prediction(cam_to_world=cam_to_world)
+        return Prediction(cam_to_world=constant_velocity_poses(sequence.num_frames))
 
 
 def make_baseline(name: str) -> Predictor:
