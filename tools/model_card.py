@@ -160,6 +160,11 @@ def results_section(evaluation: dict) -> str:
     return table(["metric", *(METHOD_NAMES.get(m["name"], m["name"]) for m in methods)], rows)
 
 
+def mean_ate(rows: dict, names: list[str]) -> float:
+    """The mean ATE of a method's per-clip ``rows`` (name -> row) over the clips ``names``."""
+    return sum(rows[n]["metrics"]["ate"] for n in names) / len(names)
+
+
 def pose_comparison(evaluation: dict) -> dict:
     """d4rt's and pycolmap's ATE on the clips pycolmap could pose (>= 3 registered frames), and which
     clips each failed on (no ATE)."""
@@ -168,13 +173,10 @@ def pose_comparison(evaluation: dict) -> dict:
     common = [name for name in d4rt if colmap[name]["metrics"]["ate"] is not None
               and d4rt[name]["metrics"]["ate"] is not None]
 
-    def mean(rows: dict, names: list[str]) -> float:
-        return sum(rows[n]["metrics"]["ate"] for n in names) / len(names)
-
     return {"clips": len(d4rt), "common": common,
             "d4rt_failed": [n for n in d4rt if d4rt[n]["metrics"]["ate"] is None],
             "colmap_failed": [n for n in colmap if colmap[n]["metrics"]["ate"] is None],
-            "d4rt_ate": mean(d4rt, common), "colmap_ate": mean(colmap, common),
+            "d4rt_ate": mean_ate(d4rt, common), "colmap_ate": mean_ate(colmap, common),
             "d4rt_better": sum(d4rt[n]["metrics"]["ate"] < colmap[n]["metrics"]["ate"] for n in common),
             "colmap_registered": sum(colmap[n]["metrics"]["registered"] for n in common) / len(common)}
 
@@ -186,11 +188,8 @@ def floor_comparison(evaluation: dict, common: list[str]) -> dict:
     d4rt, line = methods["d4rt"], methods["constant-velocity"]
     posed = [name for name in d4rt if d4rt[name]["metrics"]["ate"] is not None]
 
-    def mean(rows: dict, names: list[str]) -> float:
-        return sum(rows[n]["metrics"]["ate"] for n in names) / len(names)
-
-    return {"line_ate": mean(line, common), "posed": posed, "d4rt_ate_posed": mean(d4rt, posed),
-            "line_ate_posed": mean(line, posed),
+    return {"line_ate": mean_ate(line, common), "posed": posed, "d4rt_ate_posed": mean_ate(d4rt, posed),
+            "line_ate_posed": mean_ate(line, posed),
             "d4rt_below_line": sum(d4rt[n]["metrics"]["ate"] < line[n]["metrics"]["ate"] for n in posed)}
 
 
