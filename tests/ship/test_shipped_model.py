@@ -32,7 +32,7 @@ from subprocess_budget import budget
 ROOT = Path(__file__).resolve().parents[2]
 EXPECTED = Path(__file__).with_name("expected-subset.json")
 CARD_EVAL = ROOT / "docs" / "model-card" / "eval-synthetic-dynamic-v1.json"
-SHIP_CONFIG = ROOT / "configs" / "ship-tiny-cpu-stage106-average-continue.yaml"
+SHIP_CONFIG = ROOT / "configs" / "ship-tiny-cpu-stage117-aligned-in-view-longer.yaml"
 # The camera pairing the ship judge chose on held-out clips (benchmarks/judge_pairing.py writes it into the shipped
 # config.json); the training config names the pairing its run used.
 SHIP_POSE_PAIRS = "adjacent"
@@ -132,9 +132,10 @@ def test_bf16_answers_stay_within_stated_tolerance_of_fp32():
     adjacent frame pairs; stage 101's weights measured depth 2.0e-3, confidence 1.2e-3, cameras 2.2e-3 here on an
     AVX512-BF16 CPU and 1.8e-3, 1.2e-3, 2.4e-3 on an AMX one; stage 103's 2.4e-3, 1.0e-3, 3.5e-3 on the AMX one;
     the average of stages 103 and 104 3.2e-3, 1.2e-3, 2.9e-3 on the AMX one; stage 107's soup 2.4e-3, 1.1e-3,
-    1.5e-3 there), with the same camera ATE against the truth (within 5%; stage 101's 0.142 and 0.140, stage 103's
-    0.272 and 0.264, the average's 0.058 and 0.058, the soup's 0.111 and 0.112); tracks, whose window hand-off
-    thresholds visibility, 5e-2 (measured 1.4e-3, 3.2e-3 and 1.4e-3)."""
+    1.5e-3 there; stage 118's soup 2.2e-3, 1.0e-3, 1.9e-3 there), with the same camera ATE against the truth (within
+    5%; stage 101's 0.142 and 0.140, stage 103's 0.272 and 0.264, the average's 0.058 and 0.058, the soup's 0.111 and
+    0.112, stage 118's 0.262 and 0.263); tracks, whose window hand-off thresholds visibility, 5e-2 (measured 1.4e-3,
+    3.2e-3, 1.4e-3 and 2.0e-3)."""
     import torch
 
     from d4rt.evaluation.metrics import pose_metrics
