@@ -28,7 +28,9 @@ t_src and t_cam). ``--frames 24 --time-stride 1`` asks 24-frame clips at synthet
 ``trajectory_ate``: the whole trajectory as ``Reconstruction.cameras`` returns it, for each ``pose_pairs``
 (``first``: the paper's recipe, every frame against camera 0; ``adjacent``: every frame against the previous one,
 the fits chained), scored like ``d4rt eval`` (ATE after Sim(3) alignment, in the clip's units): mean and median
-over the clips, beside a camera that never moves (the RMS distance of the true positions from their mean) and
+over the clips; the adjacent chain again with each step's rotation (``adjacent_true_rotations``) or translation
+(``adjacent_true_translations``) replaced by the truth's, which says which half of the steps its error comes from;
+beside a camera that never moves (the RMS distance of the true positions from their mean) and
 one that walks a straight line at constant speed (``constant_velocity``: the RMS distance of the true positions
 from the best straight line in time; on these smooth paths the floor a camera has to beat).
 Writes JSON and prints it.
@@ -101,12 +103,29 @@ def trajectory_ates(scene, clip) -> dict[str, float]:
     ``query`` and ``num_frames``), of a camera that never moves and of one walking a straight line at constant
     speed (the two pose floors of ``d4rt eval``)."""
     truth = clip.cam_to_world
-    ates = {pairs: pose_metrics(Reconstruction(scene, clip.rgb, pose_pairs=pairs, progress=False)
-                                .cameras().cam_to_world, truth)["ate"] for pairs in POSE_PAIRS}
+    poses = {pairs: Reconstruction(scene, clip.rgb, pose_pairs=pairs, progress=False).cameras().cam_to_world
+             for pairs in POSE_PAIRS}
+    ates = {pairs: pose_metrics(pose, truth)["ate"] for pairs, pose in poses.items()}
+    for part in ("rotation", "translation"):
+        ates[f"adjacent_true_{part}s"] = pose_metrics(chain_with_true(poses["adjacent"], truth, part), truth)["ate"]
     centres = truth[:, :3, 3]
     ates["static"] = float(np.sqrt(((centres - centres.mean(0)) ** 2).sum(1).mean()))
     ates["constant_velocity"] = pose_metrics(constant_velocity_poses(len(truth)), truth)["ate"]
     return ates
+
+
+def chain_with_true(poses: np.ndarray, truth: np.ndarray, part: str) -> np.ndarray:
+    """``poses`` (T, 4, 4) camera-to-world re-chained from its frame-to-frame steps with each step's ``part``
+    ("rotation" or "translation") replaced by the truth's (T, 4, 4): which half of the steps the chain's ATE comes from.
+    The truth's translations are in the truth's units; ATE's Sim(3) alignment needs one scale for the whole path, which
+    the true translations with the model's rotations keep."""
+    steps, true_steps = (np.linalg.inv(p[:-1]) @ p[1:] for p in (poses, truth))
+    key = (slice(None), slice(0, 3), slice(0, 3)) if part == "rotation" else (slice(None), slice(0, 3), 3)
+    steps[key] = true_steps[key]
+    chained = [truth[0]]
+    for step in steps:
+        chained.append(chained[-1] @ step)
+    return np.stack(chained)
 
 
 def summarise_ates(per_clip: list[dict]) -> dict:

@@ -49,6 +49,7 @@ def test_the_oracle_recovers_every_camera_motion(clips):
                for g in report["by_gap"] if g["frames_travelled"])
     ate = report["trajectory_ate"]
     assert ate["first"]["mean"] < 1e-4 and ate["adjacent"]["mean"] < 1e-4  # both pairings exact
+    assert ate["adjacent_true_rotations"]["mean"] < 1e-4 and ate["adjacent_true_translations"]["mean"] < 1e-4
     assert ate["static"]["mean"] > 0.1
     # A line walked at zero speed is the static camera, so the best line is never farther from the path.
     assert 0 < ate["constant_velocity"]["mean"] <= ate["static"]["mean"]
@@ -67,3 +68,22 @@ def test_answers_that_ignore_t_cam_recover_no_camera_motion(clips):
     assert report["median_rotation_error"] == pytest.approx(report["median_true_rotation"], abs=1e-3)
     assert report["frames_travelled"] > 0
     assert abs(report["median_translation_cosine"]) < 1e-6 and report["median_translation_ratio"] < 1e-6
+
+
+def test_a_chain_with_the_true_half_of_each_step_keeps_the_other_half(clips):
+    """Steps whose rotations are wrong and translations right: the true rotations restore the path exactly, the
+    true translations alone do not (the wrong rotations still turn every later step)."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    truth = clips[0][1].cam_to_world
+    steps = np.linalg.inv(truth[:-1]) @ truth[1:]
+    steps[:, :3, :3] = steps[:, :3, :3] @ Rotation.from_rotvec([0.0, 0.05, 0.0]).as_matrix()
+    wrong = [truth[0]]
+    for step in steps:
+        wrong.append(wrong[-1] @ step)
+    wrong = np.stack(wrong)
+    np.testing.assert_allclose(camera_probe.chain_with_true(wrong, truth, "rotation"), truth, atol=1e-9)
+    kept = camera_probe.chain_with_true(wrong, truth, "translation")
+    np.testing.assert_allclose(kept[:, :3, :3], wrong[:, :3, :3], atol=1e-9)  # the wrong rotations stay
+    assert np.abs(kept[:, :3, 3] - truth[:, :3, 3]).max() > 1e-3
