@@ -119,6 +119,8 @@ def chain_with_true(poses: np.ndarray, truth: np.ndarray, part: str) -> np.ndarr
     ("rotation" or "translation") replaced by the truth's (T, 4, 4): which half of the steps the chain's ATE comes from.
     The truth's translations are in the truth's units; ATE's Sim(3) alignment needs one scale for the whole path, which
     the true translations with the model's rotations keep."""
+    if part not in ("rotation", "translation"):
+        raise ValueError(f"part must be 'rotation' or 'translation', got {part!r}")
     steps, true_steps = (np.linalg.inv(p[:-1]) @ p[1:] for p in (poses, truth))
     key = (slice(None), slice(0, 3), slice(0, 3)) if part == "rotation" else (slice(None), slice(0, 3), 3)
     steps[key] = true_steps[key]
