@@ -472,6 +472,37 @@ def test_camera_pair_term_zero_for_consistent_answers_and_prices_a_travel_error_
         d4rt_loss(pred, {k: v for k, v in batch.items() if k != "twin"}, config)
 
 
+def test_camera_pair_direction_term_prices_the_travel_direction_not_its_length():
+    batch = _camera_pair_case()
+    config = LossConfig(weight_camera_pair_direction=1.0)
+    pred = perfect(batch) | {"visibility_logit": 30.0 * (2 * batch["visibility"] - 1),
+                             "confidence": torch.ones(batch["valid"].shape)}
+    _, terms = d4rt_loss(pred, batch, config)
+    assert terms["camera_pair_direction"] < 1e-4
+    # Each pair's answer moved so that its travel doubles: the same direction, so still (almost) free.
+    from d4rt.training.losses import _MIN_PAIR_TRAVEL, camera_pair_travels
+    valid = batch["valid"]
+    s = mean_depth(batch["points"], valid)
+    _, true, paired = camera_pair_travels(batch["points"], batch["points"], valid, batch, s, s)
+    moved = paired & (true.norm(dim=-1) >= _MIN_PAIR_TRAVEL)
+    assert moved.sum() > 10  # the rendered clips' cameras travel
+    doubled = batch["points"] + torch.where(paired[..., None], true * s[:, None, None], 0.0)
+    _, terms = d4rt_loss(pred | {"points": doubled}, batch, config)
+    assert terms["camera_pair_direction"] < 0.05  # the clip's mean depth moves a little with the shifted answers
+    # Travels that vanish (each pair answered as its twin, rotated): 1 on every moved pair, with a finite gradient.
+    twin = batch["twin"].clamp_min(0)
+    from d4rt.training.losses import source_to_camera
+    rotated = (source_to_camera(batch)[..., :3, :3] @ torch.gather(
+        batch["points"], 1, twin[..., None].expand(-1, -1, 3))[..., None])[..., 0]
+    still = torch.where(paired[..., None], rotated, batch["points"]).requires_grad_(True)
+    total, terms = d4rt_loss(pred | {"points": still}, batch, config)
+    assert terms["camera_pair_direction"] == pytest.approx(1.0, abs=1e-4)
+    total.backward()
+    assert torch.isfinite(still.grad).all() and still.grad.abs().sum() > 0
+    with pytest.raises(UserError, match="camera_pair_twins: true"):
+        d4rt_loss(pred, {k: v for k, v in batch.items() if k != "twin"}, config)
+
+
 def on_axis_batch(z_true: torch.Tensor, times: torch.Tensor) -> dict[str, torch.Tensor]:
     """A one-clip batch of N queries at the image centre whose true points lie on the optical axis at depths
     ``z_true`` (N,), with (t_src, t_tgt, t_cam) ``times`` (N, 3); every point valid, no 2D targets."""

@@ -61,6 +61,16 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   between the two cameras cost it nothing extra, though they are all the chain sees. The length (not its
   square) pushes every pair with the same force, however short its step (stage 10's lesson for the pose
   head). Stage 86.
+- *Camera-pair direction* (not in paper; ``weight_camera_pair_direction`` > 0, the same pairs): the distance
+  between the unit direction of the true travel and the predicted travel divided by its length, the length
+  floored at ``_MIN_PAIR_TRAVEL_LENGTH`` (both in units of each side's per-clip mean depth), on the pairs whose true
+  travel is at least ``_MIN_PAIR_TRAVEL`` (a camera turning on the spot has no direction to learn, and a
+  step's direction moves the chained path by its length). Why: the
+  shipped chain's step translations point 83-92% along the optical axis with median cosine 0.16-0.32 to the true
+  step, while re-chaining its steps with the true translations halves its ATE (stage 118's camera probe,
+  docs/training.md); the camera-pair term prices the travel's error by its length, so the short steps of most
+  clips, whose direction is as much of the path as a long step's, cost it almost nothing. The floor keeps the
+  gradient finite where the predicted travel vanishes (there the term is 1 and pushes it out along the truth).
 - *Log depth* (not in paper; ``weight_log_depth`` > 0): ``|log(z_pred / s_pred) - log(z_target / s_target)|``
   on the queries whose target lies in front of camera t_cam, each side divided by its own per-clip mean
   depth ``s`` (as L3D, so the term is scale-invariant). Why: L3D's log-compressed coordinates weigh the ratio
@@ -151,6 +161,11 @@ _MIN_LOG_DEPTH = 1e-3
 # Smallest per-clip angular spread (radians) the ray-angle term divides by: a clip seen head-on along
 # one ray only (never in real data) cannot blow the term up.
 _MIN_RAY_SPREAD = 1e-3
+# The camera-pair direction term: the shortest true travel (in mean depths) whose direction it prices (about the
+# shortest quarter of the rendered pairs' steps are shorter: their direction hardly moves the chained path), and the
+# length below which a predicted travel's direction is priced as if it were that long.
+_MIN_PAIR_TRAVEL = 1e-2
+_MIN_PAIR_TRAVEL_LENGTH = 1e-2
 
 
 @dataclass
@@ -197,6 +212,7 @@ class LossConfig:
     pose_translation: str = "l1"
     weight_pose_translation: float | None = None
     weight_camera_pair: float = 0.0
+    weight_camera_pair_direction: float = 0.0
     weight_log_depth: float = 0.0
     weight_aligned_depth: float = 0.0
     aligned_depth_alignment: str = "scale&shift"
@@ -215,7 +231,7 @@ class LossConfig:
     def validate(self) -> None:
         optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
-                     "weight_normal", "weight_pose", "weight_camera_pair", "weight_log_depth", "weight_aligned_depth",
+                     "weight_normal", "weight_pose", "weight_camera_pair", "weight_camera_pair_direction", "weight_log_depth", "weight_aligned_depth",
                      "weight_ray_angle", "weight_dense_depth", "weight_correspondence", *optional):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
@@ -492,6 +508,11 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
                                                          mean_depth(p["points"], valid).detach(),
                                                          mean_depth(target_points, valid))
         total = total + config.weight_camera_pair * optional_terms["camera_pair"]
+    if config.weight_camera_pair_direction > 0:
+        optional_terms["camera_pair_direction"] = camera_pair_direction_loss(
+            p["points"], target_points, valid, batch, mean_depth(p["points"], valid).detach(),
+            mean_depth(target_points, valid))
+        total = total + config.weight_camera_pair_direction * optional_terms["camera_pair_direction"]
     if config.weight_log_depth > 0:
         log_depth, in_front = log_depth_loss(p["points"], target_points, valid)
         optional_terms["log_depth"] = masked_mean(log_depth, in_front)
@@ -563,21 +584,22 @@ def source_to_camera(batch: dict[str, torch.Tensor]) -> torch.Tensor:
     return (invert_rigid(c2w)[clip, t_cam] @ c2w[clip, t_src]).float()
 
 
-def camera_pair_loss(pred_points: torch.Tensor, target_points: torch.Tensor, valid: torch.Tensor,
-                     batch: dict[str, torch.Tensor], pred_scale: torch.Tensor,
-                     target_scale: torch.Tensor) -> torch.Tensor:
-    """The camera-pair term (module docstring): mean over the camera-pair queries whose point and twin's point
-    exist of ``|(P_pair - R P_twin) / s_pred - (T_pair - R T_twin) / s_target|``.
+def camera_pair_travels(pred_points: torch.Tensor, target_points: torch.Tensor, valid: torch.Tensor,
+                        batch: dict[str, torch.Tensor], pred_scale: torch.Tensor,
+                        target_scale: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The travel each camera-pair query and its twin imply, ``(P_pair - R P_twin) / s`` with the true rotation R
+    from camera t_src to camera t_cam, for the prediction and the target (each divided by its own scale s).
 
     pred_points, target_points: (B, N, 3) in each query's camera t_cam; valid: (B, N) bool; batch: ``twin
     (B, N)`` long (the index of a camera-pair query's twin, -1 elsewhere), ``queries (B, N, 5)``,
-    ``cam_to_world (B, T, 4, 4)``; scales: (B,) per-clip mean depths. Returns a scalar (0 without pairs).
+    ``cam_to_world (B, T, 4, 4)``; scales: (B,) per-clip mean depths. Returns the predicted and true travels
+    (B, N, 3) and ``paired`` (B, N) bool: the camera-pair queries whose point and twin's point exist.
     """
     if "twin" not in batch:
-        raise UserError("loss weight_camera_pair > 0 needs batches with twin queries: set "
+        raise UserError("the camera-pair loss terms need batches with twin queries: set "
                         "data.dataset.sampler.camera_pair_twins: true")
     if "cam_to_world" not in batch:
-        raise UserError("loss weight_camera_pair > 0 needs cam_to_world in every training sample")
+        raise UserError("the camera-pair loss terms need cam_to_world in every training sample")
     twin = batch["twin"].long()
     index = twin.clamp_min(0)
     paired = (twin >= 0) & valid & torch.gather(valid, 1, index)
@@ -588,9 +610,36 @@ def camera_pair_loss(pred_points: torch.Tensor, target_points: torch.Tensor, val
         rotated = (rotation @ twins[..., None])[..., 0]
         return (points - rotated) / scale[:, None, None]
 
-    difference = travel(pred_points, pred_scale) - travel(target_points, target_scale)
-    length = (difference.square().sum(-1) + 1e-12).sqrt()  # finite gradient where the travel is exact
+    return travel(pred_points, pred_scale), travel(target_points, target_scale), paired
+
+
+def camera_pair_loss(pred_points: torch.Tensor, target_points: torch.Tensor, valid: torch.Tensor,
+                     batch: dict[str, torch.Tensor], pred_scale: torch.Tensor,
+                     target_scale: torch.Tensor) -> torch.Tensor:
+    """The camera-pair term (module docstring): mean over the camera-pair queries whose point and twin's point
+    exist of ``|(P_pair - R P_twin) / s_pred - (T_pair - R T_twin) / s_target|``. Arguments as
+    :func:`camera_pair_travels`; returns a scalar (0 without pairs)."""
+    predicted, true, paired = camera_pair_travels(pred_points, target_points, valid, batch, pred_scale,
+                                                  target_scale)
+    length = ((predicted - true).square().sum(-1) + 1e-12).sqrt()  # finite gradient where the travel is exact
     return masked_mean(length, paired)
+
+
+def camera_pair_direction_loss(pred_points: torch.Tensor, target_points: torch.Tensor, valid: torch.Tensor,
+                               batch: dict[str, torch.Tensor], pred_scale: torch.Tensor,
+                               target_scale: torch.Tensor) -> torch.Tensor:
+    """The camera-pair direction term (module docstring): mean over the pairs of :func:`camera_pair_travels`
+    whose true travel is at least ``_MIN_PAIR_TRAVEL`` of ``|t / |t| - p / max(|p|, _MIN_PAIR_TRAVEL_LENGTH)|``
+    (p, t the predicted and true travels), in [0, 2]: 0 when the directions agree, 1 for a vanished prediction.
+    Arguments as :func:`camera_pair_travels`; returns a scalar (0 without such pairs)."""
+    predicted, true, paired = camera_pair_travels(pred_points, target_points, valid, batch, pred_scale,
+                                                  target_scale)
+    true_length = true.norm(dim=-1, keepdim=True)
+    moved = paired & (true_length[..., 0] >= _MIN_PAIR_TRAVEL)
+    true_direction = true / true_length.clamp_min(_MIN_PAIR_TRAVEL)
+    predicted_direction = predicted / predicted.norm(dim=-1, keepdim=True).clamp_min(_MIN_PAIR_TRAVEL_LENGTH)
+    distance = ((predicted_direction - true_direction).square().sum(-1) + 1e-12).sqrt()
+    return masked_mean(distance, moved)
 
 
 def _zero_where_missing(target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
