@@ -32,7 +32,10 @@ over the clips; the adjacent chain again with each step's rotation (``adjacent_t
 (``adjacent_true_translations``) replaced by the truth's, which says which half of the steps its error comes from;
 beside a camera that never moves (the RMS distance of the true positions from their mean) and
 one that walks a straight line at constant speed (``constant_velocity``: the RMS distance of the true positions
-from the best straight line in time; on these smooth paths the floor a camera has to beat).
+from the best straight line in time; on these smooth paths the floor a camera has to beat). ``adjacent_steps``: the
+adjacent chain's frame-to-frame steps against the true ones, over the steps that travel at least a quarter of their
+clip's median step: the median cosine of the step translations and the median share of a step's length along the
+optical axis, the model's and the truth's (a chain that walks straight ahead reads a share near 1).
 Writes JSON and prints it.
 """
 
@@ -62,6 +65,7 @@ HELD_OUT_SEED = 8_000_000
 FRAMES, TIME_STRIDE, GRID = 16, 2, 8
 MIN_ROTATION = 5.0  # degrees: frames with less true rotation say little about the ratio
 MIN_TRAVEL = 0.1  # of the points' mean distance: frames whose camera travelled less say little about direction
+MIN_STEP = 0.25  # of a clip's median true frame-to-frame travel: shorter steps say little about direction
 
 
 def own_and_first_camera(answer, num_frames: int) -> tuple[np.ndarray, np.ndarray]:
@@ -98,10 +102,10 @@ def by_gap(errors: np.ndarray, cosines: np.ndarray) -> list[dict]:
              "frames_travelled": int(np.isfinite(cosines[:, a:b]).sum())} for a, b in bins]
 
 
-def trajectory_ates(scene, clip) -> dict[str, float]:
+def trajectory_ates(scene, clip) -> tuple[dict[str, float], dict[str, np.ndarray]]:
     """ATE of the recipe's trajectory for each pose pairing, from the clip's encoded ``scene`` (anything with
     ``query`` and ``num_frames``), of a camera that never moves and of one walking a straight line at constant
-    speed (the two pose floors of ``d4rt eval``)."""
+    speed (the two pose floors of ``d4rt eval``); and the adjacent chain's step directions (:func:`step_directions`)."""
     truth = clip.cam_to_world
     poses = {pairs: Reconstruction(scene, clip.rgb, pose_pairs=pairs, progress=False).cameras().cam_to_world
              for pairs in POSE_PAIRS}
@@ -111,7 +115,29 @@ def trajectory_ates(scene, clip) -> dict[str, float]:
     centres = truth[:, :3, 3]
     ates["static"] = float(np.sqrt(((centres - centres.mean(0)) ** 2).sum(1).mean()))
     ates["constant_velocity"] = pose_metrics(constant_velocity_poses(len(truth)), truth)["ate"]
-    return ates
+    return ates, step_directions(poses["adjacent"], truth)
+
+
+def step_directions(poses: np.ndarray, truth: np.ndarray) -> dict[str, np.ndarray]:
+    """The frame-to-frame steps of ``poses`` (T, 4, 4) camera-to-world against the truth's (T, 4, 4), over the steps
+    whose true travel is at least ``MIN_STEP`` of the clip's median true step (a turn on the spot has no direction):
+    ``cosine``, the cosine between the model's and the true step translation (in the earlier camera's axes; each in
+    its own scale), and ``axial_share`` / ``true_axial_share``, the share of the step's length along the optical axis
+    (|z| / length). Each (steps,); empty for a camera that never travels."""
+    steps, true_steps = ((np.linalg.inv(p[:-1]) @ p[1:])[:, :3, 3] for p in (poses, truth))
+    length, true_length = np.linalg.norm(steps, axis=-1), np.linalg.norm(true_steps, axis=-1)
+    counted = true_length >= max(MIN_STEP * float(np.median(true_length)), 1e-9)
+    cosine = (steps * true_steps).sum(-1) / np.maximum(length * true_length, 1e-12)  # 0 for a vanished step
+    return {"cosine": cosine[counted], "axial_share": np.abs(steps[:, 2])[counted] / np.maximum(length[counted], 1e-12),
+            "true_axial_share": np.abs(true_steps[:, 2])[counted] / true_length[counted]}
+
+
+def summarise_steps(per_clip: list[dict]) -> dict:
+    """Medians over every counted step of every clip of :func:`step_directions`' figures, and the count."""
+    values = {key: np.concatenate([row[key] for row in per_clip]) for key in per_clip[0]}
+    count = len(values["cosine"])
+    return {f"median_{key}": round(float(np.median(v)), 3) if count else None for key, v in values.items()} | {
+        "steps": count}
 
 
 def chain_with_true(poses: np.ndarray, truth: np.ndarray, part: str) -> np.ndarray:
@@ -137,11 +163,13 @@ def summarise_ates(per_clip: list[dict]) -> dict:
 
 def probe(model: D4RT, clips: list, frames: int = FRAMES) -> dict:
     rows, rot_ratio, change_ratio, errors, truths, cosines, lengths = [], [], [], [], [], [], []
-    error_table, cosine_table, ates = [], [], []
+    error_table, cosine_table, ates, steps = [], [], [], []
     for name, clip in clips:
         with torch.no_grad():  # one encoding serves the probe's queries and both trajectories
             scene = flipped_encode(model)(clip.rgb)  # as the recipes encode
-            ates.append(trajectory_ates(scene, clip))
+            clip_ates, clip_steps = trajectory_ates(scene, clip)
+            ates.append(clip_ates)
+            steps.append(clip_steps)
             model_r, model_rot, model_change, model_t = camera_figures(*own_and_first_camera(scene.query, frames))
         true_r, true_rot, true_change, true_t = camera_figures(*own_and_first_camera(clip.oracle.query, frames))
         travelled = np.linalg.norm(true_t, axis=-1) > MIN_TRAVEL
@@ -170,7 +198,7 @@ def probe(model: D4RT, clips: list, frames: int = FRAMES) -> dict:
             "median_translation_ratio": round(float(np.median(lengths)), 3) if lengths else None,
             "frames_travelled": len(cosines),
             "by_gap": by_gap(np.array(error_table), np.array(cosine_table)),
-            "trajectory_ate": summarise_ates(ates), "clips": rows}
+            "trajectory_ate": summarise_ates(ates), "adjacent_steps": summarise_steps(steps), "clips": rows}
 
 
 def main() -> None:
@@ -202,6 +230,9 @@ def main() -> None:
               f"({row['frames_travelled']} frames)")
         print("  trajectory ATE (mean / median over clips):",
               "; ".join(f"{k} {v['mean']} / {v['median']}" for k, v in row["trajectory_ate"].items()))
+        steps = row["adjacent_steps"]
+        print(f"  adjacent steps ({steps['steps']}): median cosine with the true step {steps['median_cosine']}, "
+              f"share along the optical axis {steps['median_axial_share']} (true {steps['median_true_axial_share']})")
         for gap in row["by_gap"]:
             print(f"  frames {gap['frames'][0]}-{gap['frames'][1]}: rotation error {gap['median_rotation_error']} deg, "
                   f"translation cosine {gap['median_translation_cosine']} ({gap['frames_travelled']} frames)")

@@ -51,6 +51,9 @@ def test_the_oracle_recovers_every_camera_motion(clips):
     assert ate["first"]["mean"] < 1e-4 and ate["adjacent"]["mean"] < 1e-4  # both pairings exact
     assert ate["adjacent_true_rotations"]["mean"] < 1e-4 and ate["adjacent_true_translations"]["mean"] < 1e-4
     assert ate["static"]["mean"] > 0.1
+    steps = report["adjacent_steps"]
+    assert steps["steps"] > 0 and steps["median_cosine"] == pytest.approx(1.0, abs=1e-6)
+    assert steps["median_axial_share"] == pytest.approx(steps["median_true_axial_share"], abs=1e-6)
     # A line walked at zero speed is the static camera, so the best line is never farther from the path.
     assert 0 < ate["constant_velocity"]["mean"] <= ate["static"]["mean"]
 
@@ -87,3 +90,21 @@ def test_a_chain_with_the_true_half_of_each_step_keeps_the_other_half(clips):
     kept = camera_probe.chain_with_true(wrong, truth, "translation")
     np.testing.assert_allclose(kept[:, :3, :3], wrong[:, :3, :3], atol=1e-9)  # the wrong rotations stay
     assert np.abs(kept[:, :3, 3] - truth[:, :3, 3]).max() > 1e-3
+
+
+def test_step_directions_read_a_chain_that_walks_straight_ahead():
+    """Steps turned onto the optical axis read the cosine of that turn and an axial share of 1; a camera that
+    never travels has no step to count."""
+    import numpy as np
+
+    truth = np.tile(np.eye(4), (5, 1, 1))
+    truth[:, :3, 3] = np.arange(5)[:, None] * np.array([1.0, 0.0, 1.0])  # 45 degrees off the axis, no turn
+    ahead = np.tile(np.eye(4), (5, 1, 1))
+    ahead[:, 2, 3] = 3.0 * np.arange(5)  # straight ahead, another scale
+    figures = camera_probe.step_directions(ahead, truth)
+    assert np.allclose(figures["cosine"], np.sqrt(0.5)) and np.allclose(figures["axial_share"], 1.0)
+    assert np.allclose(figures["true_axial_share"], np.sqrt(0.5))
+    still = np.tile(np.eye(4), (5, 1, 1))
+    assert camera_probe.step_directions(ahead, still)["cosine"].size == 0
+    summary = camera_probe.summarise_steps([figures, camera_probe.step_directions(ahead, still)])
+    assert summary["steps"] == 4 and summary["median_cosine"] == pytest.approx(np.sqrt(0.5), abs=1e-3)
