@@ -34,8 +34,9 @@ beside a camera that never moves (the RMS distance of the true positions from th
 one that walks a straight line at constant speed (``constant_velocity``: the RMS distance of the true positions
 from the best straight line in time; on these smooth paths the floor a camera has to beat). ``adjacent_steps``: the
 adjacent chain's frame-to-frame steps against the true ones, over the steps that travel at least a quarter of their
-clip's median step: the median cosine of the step translations and the median share of a step's length along the
-optical axis, the model's and the truth's (a chain that walks straight ahead reads a share near 1).
+clip's median step: the median cosine of the step translations, the median share of a step's length along the
+optical axis, the model's and the truth's (a chain that walks straight ahead reads a share near 1), and the median
+deviation of the log step-length ratio from its clip's median (the chain's scale drift from step to step).
 Writes JSON and prints it.
 """
 
@@ -122,14 +123,18 @@ def step_directions(poses: np.ndarray, truth: np.ndarray) -> dict[str, np.ndarra
     """The frame-to-frame steps of ``poses`` (T, 4, 4) camera-to-world against the truth's (T, 4, 4), over the steps
     whose true travel is at least ``MIN_STEP`` of the clip's median true step (a turn on the spot has no direction):
     ``cosine``, the cosine between the model's and the true step translation (in the earlier camera's axes; each in
-    its own scale), and ``axial_share`` / ``true_axial_share``, the share of the step's length along the optical axis
-    (|z| / length). Each (steps,); empty for a camera that never travels."""
+    its own scale), ``axial_share`` / ``true_axial_share``, the share of the step's length along the optical axis
+    (|z| / length), and ``length_deviation``, how far the log of the step's length over the true one lies from that
+    log's median over the clip's counted steps (0 when every step keeps one scale; the chain's scale drift). Each
+    (steps,); empty for a camera that never travels."""
     steps, true_steps = ((np.linalg.inv(p[:-1]) @ p[1:])[:, :3, 3] for p in (poses, truth))
     length, true_length = np.linalg.norm(steps, axis=-1), np.linalg.norm(true_steps, axis=-1)
     counted = true_length >= max(MIN_STEP * float(np.median(true_length)), 1e-9)
     cosine = (steps * true_steps).sum(-1) / np.maximum(length * true_length, 1e-12)  # 0 for a vanished step
+    log_ratio = np.log(np.maximum(length[counted], 1e-12) / true_length[counted])
     return {"cosine": cosine[counted], "axial_share": np.abs(steps[:, 2])[counted] / np.maximum(length[counted], 1e-12),
-            "true_axial_share": np.abs(true_steps[:, 2])[counted] / true_length[counted]}
+            "true_axial_share": np.abs(true_steps[:, 2])[counted] / true_length[counted],
+            "length_deviation": np.abs(log_ratio - np.median(log_ratio)) if log_ratio.size else log_ratio}
 
 
 def summarise_steps(per_clip: list[dict]) -> dict:
@@ -232,7 +237,8 @@ def main() -> None:
               "; ".join(f"{k} {v['mean']} / {v['median']}" for k, v in row["trajectory_ate"].items()))
         steps = row["adjacent_steps"]
         print(f"  adjacent steps ({steps['steps']}): median cosine with the true step {steps['median_cosine']}, "
-              f"share along the optical axis {steps['median_axial_share']} (true {steps['median_true_axial_share']})")
+              f"share along the optical axis {steps['median_axial_share']} (true {steps['median_true_axial_share']}), "
+              f"log length deviation {steps['median_length_deviation']}")
         for gap in row["by_gap"]:
             print(f"  frames {gap['frames'][0]}-{gap['frames'][1]}: rotation error {gap['median_rotation_error']} deg, "
                   f"translation cosine {gap['median_translation_cosine']} ({gap['frames_travelled']} frames)")

@@ -54,6 +54,7 @@ def test_the_oracle_recovers_every_camera_motion(clips):
     steps = report["adjacent_steps"]
     assert steps["steps"] > 0 and steps["median_cosine"] == pytest.approx(1.0, abs=1e-6)
     assert steps["median_axial_share"] == pytest.approx(steps["median_true_axial_share"], abs=1e-6)
+    assert steps["median_length_deviation"] == pytest.approx(0.0, abs=1e-6)
     # A line walked at zero speed is the static camera, so the best line is never farther from the path.
     assert 0 < ate["constant_velocity"]["mean"] <= ate["static"]["mean"]
 
@@ -104,6 +105,10 @@ def test_step_directions_read_a_chain_that_walks_straight_ahead():
     figures = camera_probe.step_directions(ahead, truth)
     assert np.allclose(figures["cosine"], np.sqrt(0.5)) and np.allclose(figures["axial_share"], 1.0)
     assert np.allclose(figures["true_axial_share"], np.sqrt(0.5))
+    assert np.allclose(figures["length_deviation"], 0.0)  # every step 3 / sqrt(2) times the true one: no drift
+    uneven = ahead.copy()
+    uneven[:, 2, 3] = np.array([0.0, 1.0, 3.0, 4.0, 6.0])  # steps 1, 2, 1, 2: the median log ratio lies between
+    assert np.allclose(camera_probe.step_directions(uneven, truth)["length_deviation"], np.log(2) / 2)
     still = np.tile(np.eye(4), (5, 1, 1))
     assert camera_probe.step_directions(ahead, still)["cosine"].size == 0
     summary = camera_probe.summarise_steps([figures, camera_probe.step_directions(ahead, still)])
