@@ -29,7 +29,9 @@ t_src and t_cam). ``--frames 24 --time-stride 1`` asks 24-frame clips at synthet
 (``first``: the paper's recipe, every frame against camera 0; ``adjacent``: every frame against the previous one,
 the fits chained), scored like ``d4rt eval`` (ATE after Sim(3) alignment, in the clip's units): mean and median
 over the clips; the adjacent chain again with each step's rotation (``adjacent_true_rotations``) or translation
-(``adjacent_true_translations``) replaced by the truth's, which says which half of the steps its error comes from;
+(``adjacent_true_translations``) replaced by the truth's, which says which half of the steps its error comes from,
+and with each step's translation averaged over the 5 steps centred on it (``adjacent_smoothed_5``: the share of its
+error that is step-to-step scatter);
 beside a camera that never moves (the RMS distance of the true positions from their mean) and
 one that walks a straight line at constant speed (``constant_velocity``: the RMS distance of the true positions
 from the best straight line in time; on these smooth paths the floor a camera has to beat). ``adjacent_steps``: the
@@ -66,6 +68,7 @@ HELD_OUT_SEED = 8_000_000
 FRAMES, TIME_STRIDE, GRID = 16, 2, 8
 MIN_ROTATION = 5.0  # degrees: frames with less true rotation say little about the ratio
 MIN_TRAVEL = 0.1  # of the points' mean distance: frames whose camera travelled less say little about direction
+SMOOTHING = 5  # steps averaged by the smoothed chain of trajectory_ate (adjacent_smoothed_5)
 MIN_STEP = 0.25  # of a clip's median true frame-to-frame travel: shorter steps say little about direction
 
 
@@ -113,6 +116,7 @@ def trajectory_ates(scene, clip) -> tuple[dict[str, float], dict[str, np.ndarray
     ates = {pairs: pose_metrics(pose, truth)["ate"] for pairs, pose in poses.items()}
     for part in ("rotation", "translation"):
         ates[f"adjacent_true_{part}s"] = pose_metrics(chain_with_true(poses["adjacent"], truth, part), truth)["ate"]
+    ates[f"adjacent_smoothed_{SMOOTHING}"] = pose_metrics(chain_smoothed(poses["adjacent"], SMOOTHING), truth)["ate"]
     centres = truth[:, :3, 3]
     ates["static"] = float(np.sqrt(((centres - centres.mean(0)) ** 2).sum(1).mean()))
     ates["constant_velocity"] = pose_metrics(constant_velocity_poses(len(truth)), truth)["ate"]
@@ -156,6 +160,24 @@ def chain_with_true(poses: np.ndarray, truth: np.ndarray, part: str) -> np.ndarr
     key = (slice(None), slice(0, 3), slice(0, 3)) if part == "rotation" else (slice(None), slice(0, 3), 3)
     steps[key] = true_steps[key]
     chained = [truth[0]]
+    for step in steps:
+        chained.append(chained[-1] @ step)
+    return np.stack(chained)
+
+
+def chain_smoothed(poses: np.ndarray, window: int) -> np.ndarray:
+    """``poses`` (T, 4, 4) camera-to-world re-chained from its frame-to-frame steps with each step's translation
+    replaced by the mean of the translations of the ``window`` steps centred on it (fewer at the ends), its rotation
+    kept: how much of the chain's ATE is step-to-step scatter that a smoothness prior would remove. The steps are in
+    each earlier camera's axes, which turn by about a degree per frame on these clips."""
+    if window < 1 or window % 2 == 0:
+        raise ValueError(f"window must be an odd number >= 1, got {window}")
+    steps = np.linalg.inv(poses[:-1]) @ poses[1:]
+    half = window // 2
+    translations = steps[:, :3, 3].copy()
+    for i in range(len(steps)):
+        steps[i, :3, 3] = translations[max(0, i - half):i + half + 1].mean(0)
+    chained = [poses[0]]
     for step in steps:
         chained.append(chained[-1] @ step)
     return np.stack(chained)

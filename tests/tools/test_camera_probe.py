@@ -50,6 +50,7 @@ def test_the_oracle_recovers_every_camera_motion(clips):
     ate = report["trajectory_ate"]
     assert ate["first"]["mean"] < 1e-4 and ate["adjacent"]["mean"] < 1e-4  # both pairings exact
     assert ate["adjacent_true_rotations"]["mean"] < 1e-4 and ate["adjacent_true_translations"]["mean"] < 1e-4
+    assert ate["adjacent_smoothed_5"]["mean"] < ate["static"]["mean"]  # a smoothed true path: near it, not exact
     assert ate["static"]["mean"] > 0.1
     steps = report["adjacent_steps"]
     assert steps["steps"] > 0 and steps["median_cosine"] == pytest.approx(1.0, abs=1e-6)
@@ -113,3 +114,20 @@ def test_step_directions_read_a_chain_that_walks_straight_ahead():
     assert camera_probe.step_directions(ahead, still)["cosine"].size == 0
     summary = camera_probe.summarise_steps([figures, camera_probe.step_directions(ahead, still)])
     assert summary["steps"] == 4 and summary["median_cosine"] == pytest.approx(np.sqrt(0.5), abs=1e-3)
+
+
+def test_a_smoothed_chain_keeps_a_steady_walk_and_removes_scatter():
+    """A path walked at constant velocity is its own smoothing; the same path with steps that alternate long and
+    short comes back closer to it once smoothed."""
+    import numpy as np
+
+    steady = np.tile(np.eye(4), (9, 1, 1))
+    steady[:, :3, 3] = np.arange(9)[:, None] * np.array([0.3, 0.0, 1.0])
+    assert np.allclose(camera_probe.chain_smoothed(steady, 5), steady)
+    scattered = steady.copy()
+    scattered[:, 0, 3] += 0.2 * (np.arange(9) % 2)  # every other frame pushed sideways
+    smoothed = camera_probe.chain_smoothed(scattered, 5)
+    distance = lambda poses: np.abs(poses[:, :3, 3] - steady[:, :3, 3]).max()
+    assert distance(smoothed) < distance(scattered)
+    with pytest.raises(ValueError, match="odd number"):
+        camera_probe.chain_smoothed(steady, 4)
