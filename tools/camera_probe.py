@@ -29,7 +29,8 @@ t_src and t_cam). ``--frames 24 --time-stride 1`` asks 24-frame clips at synthet
 (``first``: the paper's recipe, every frame against camera 0; ``adjacent``: every frame against the previous one,
 the fits chained), scored like ``d4rt eval`` (ATE after Sim(3) alignment, in the clip's units): mean and median
 over the clips; the adjacent chain again with each step's rotation (``adjacent_true_rotations``) or translation
-(``adjacent_true_translations``) replaced by the truth's, which says which half of the steps its error comes from,
+(``adjacent_true_translations``) replaced by the truth's, which says which half of the steps its error comes from
+(and the translation's direction or length alone: ``adjacent_true_translation_directions``, ``..._lengths``),
 and with each step's translation averaged over the 5 steps centred on it (``adjacent_smoothed_5``: the share of its
 error that is step-to-step scatter);
 beside a camera that never moves (the RMS distance of the true positions from their mean) and
@@ -68,6 +69,7 @@ HELD_OUT_SEED = 8_000_000
 FRAMES, TIME_STRIDE, GRID = 16, 2, 8
 MIN_ROTATION = 5.0  # degrees: frames with less true rotation say little about the ratio
 MIN_TRAVEL = 0.1  # of the points' mean distance: frames whose camera travelled less say little about direction
+CHAIN_PARTS = ("rotation", "translation", "translation_direction", "translation_length")  # see chain_with_true
 SMOOTHING = 5  # steps averaged by the smoothed chain of trajectory_ate (adjacent_smoothed_5)
 MIN_STEP = 0.25  # of a clip's median true frame-to-frame travel: shorter steps say little about direction
 
@@ -114,7 +116,7 @@ def trajectory_ates(scene, clip) -> tuple[dict[str, float], dict[str, np.ndarray
     poses = {pairs: Reconstruction(scene, clip.rgb, pose_pairs=pairs, progress=False).cameras().cam_to_world
              for pairs in POSE_PAIRS}
     ates = {pairs: pose_metrics(pose, truth)["ate"] for pairs, pose in poses.items()}
-    for part in ("rotation", "translation"):
+    for part in CHAIN_PARTS:
         ates[f"adjacent_true_{part}s"] = pose_metrics(chain_with_true(poses["adjacent"], truth, part), truth)["ate"]
     ates[f"adjacent_smoothed_{SMOOTHING}"] = pose_metrics(chain_smoothed(poses["adjacent"], SMOOTHING), truth)["ate"]
     centres = truth[:, :3, 3]
@@ -151,14 +153,27 @@ def summarise_steps(per_clip: list[dict]) -> dict:
 
 def chain_with_true(poses: np.ndarray, truth: np.ndarray, part: str) -> np.ndarray:
     """``poses`` (T, 4, 4) camera-to-world re-chained from its frame-to-frame steps with each step's ``part``
-    ("rotation" or "translation") replaced by the truth's (T, 4, 4): which half of the steps the chain's ATE comes from.
+    replaced by the truth's (T, 4, 4): which half of the steps the chain's ATE comes from. ``part``: "rotation",
+    "translation", or one factor of the translation: "translation_direction" (the true direction at the model's
+    length, rescaled by one median ratio per clip) or "translation_length" (the model's direction at the true length).
     The truth's translations are in the truth's units; ATE's Sim(3) alignment needs one scale for the whole path, which
     the true translations with the model's rotations keep."""
-    if part not in ("rotation", "translation"):
-        raise ValueError(f"part must be 'rotation' or 'translation', got {part!r}")
+    if part not in CHAIN_PARTS:
+        raise ValueError(f"part must be one of {', '.join(repr(p) for p in CHAIN_PARTS)}, got {part!r}")
     steps, true_steps = (np.linalg.inv(p[:-1]) @ p[1:] for p in (poses, truth))
-    key = (slice(None), slice(0, 3), slice(0, 3)) if part == "rotation" else (slice(None), slice(0, 3), 3)
-    steps[key] = true_steps[key]
+    if part == "rotation":
+        steps[:, :3, :3] = true_steps[:, :3, :3]
+    elif part == "translation":
+        steps[:, :3, 3] = true_steps[:, :3, 3]
+    else:  # one factor of the translation from the truth, the other the model's, in the truth's units for both
+        length, true_length = (np.linalg.norm(s[:, :3, 3], axis=-1, keepdims=True) for s in (steps, true_steps))
+        direction = steps[:, :3, 3] / np.maximum(length, 1e-12)
+        true_direction = true_steps[:, :3, 3] / np.maximum(true_length, 1e-12)
+        # the model's lengths in the truth's units: one scale per clip (the median ratio), as ATE's alignment has
+        scale = np.median(true_length[true_length > 0] / np.maximum(length[true_length > 0], 1e-12)) \
+            if (true_length > 0).any() else 1.0
+        steps[:, :3, 3] = (true_direction * length * scale if part == "translation_direction"
+                           else direction * true_length)
     chained = [truth[0]]
     for step in steps:
         chained.append(chained[-1] @ step)
