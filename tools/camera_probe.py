@@ -151,6 +151,15 @@ def summarise_steps(per_clip: list[dict]) -> dict:
         "steps": count}
 
 
+def chain(first: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Camera-to-world poses (T, 4, 4) from the first pose (4, 4) and the frame-to-frame steps (T - 1, 4, 4), each
+    step the later camera in the earlier one's axes (``inv(pose[i]) @ pose[i + 1]``)."""
+    chained = [first]
+    for step in steps:
+        chained.append(chained[-1] @ step)
+    return np.stack(chained)
+
+
 def chain_with_true(poses: np.ndarray, truth: np.ndarray, part: str) -> np.ndarray:
     """``poses`` (T, 4, 4) camera-to-world re-chained from its frame-to-frame steps with each step's ``part``
     replaced by the truth's (T, 4, 4): which half of the steps the chain's ATE comes from. ``part``: "rotation",
@@ -174,10 +183,7 @@ def chain_with_true(poses: np.ndarray, truth: np.ndarray, part: str) -> np.ndarr
             if (true_length > 0).any() else 1.0
         steps[:, :3, 3] = (true_direction * length * scale if part == "translation_direction"
                            else direction * true_length)
-    chained = [truth[0]]
-    for step in steps:
-        chained.append(chained[-1] @ step)
-    return np.stack(chained)
+    return chain(truth[0], steps)
 
 
 def chain_smoothed(poses: np.ndarray, window: int) -> np.ndarray:
@@ -192,10 +198,7 @@ def chain_smoothed(poses: np.ndarray, window: int) -> np.ndarray:
     translations = steps[:, :3, 3].copy()
     for i in range(len(steps)):
         steps[i, :3, 3] = translations[max(0, i - half):i + half + 1].mean(0)
-    chained = [poses[0]]
-    for step in steps:
-        chained.append(chained[-1] @ step)
-    return np.stack(chained)
+    return chain(poses[0], steps)
 
 
 def summarise_ates(per_clip: list[dict]) -> dict:

@@ -84,10 +84,7 @@ def test_a_chain_with_the_true_half_of_each_step_keeps_the_other_half(clips):
     truth = clips[0][1].cam_to_world
     steps = np.linalg.inv(truth[:-1]) @ truth[1:]
     steps[:, :3, :3] = steps[:, :3, :3] @ Rotation.from_rotvec([0.0, 0.05, 0.0]).as_matrix()
-    wrong = [truth[0]]
-    for step in steps:
-        wrong.append(wrong[-1] @ step)
-    wrong = np.stack(wrong)
+    wrong = camera_probe.chain(truth[0], steps)
     np.testing.assert_allclose(camera_probe.chain_with_true(wrong, truth, "rotation"), truth, atol=1e-9)
     kept = camera_probe.chain_with_true(wrong, truth, "translation")
     np.testing.assert_allclose(kept[:, :3, :3], wrong[:, :3, :3], atol=1e-9)  # the wrong rotations stay
@@ -142,10 +139,7 @@ def test_a_chain_with_the_true_direction_or_length_keeps_the_other_factor():
     truth[1:, :3, 3] = np.cumsum([[1.0, 0.0, 1.0 + 0.2 * i] for i in range(5)], 0)
     steps = np.linalg.inv(truth[:-1]) @ truth[1:]
     steps[:, :3, 3] *= np.array([2.0, 2.0, 2.0, 4.0, 4.0])[:, None]
-    built = [truth[0]]
-    for step in steps:
-        built.append(built[-1] @ step)
-    built = np.stack(built)
+    built = camera_probe.chain(truth[0], steps)
     np.testing.assert_allclose(camera_probe.chain_with_true(built, truth, "translation_length"), truth, atol=1e-9)
     kept = camera_probe.chain_with_true(built, truth, "translation_direction")
     assert np.abs(kept[:, :3, 3] - truth[:, :3, 3]).max() > 0.5

@@ -450,11 +450,16 @@ def _camera_pair_case():
     return collate_samples([dataset[0], dataset[1]])
 
 
+def _exact_answers(batch):
+    """The batch's targets as a prediction, with confident visibility logits and unit confidence."""
+    return perfect(batch) | {"visibility_logit": 30.0 * (2 * batch["visibility"] - 1),
+                             "confidence": torch.ones(batch["valid"].shape)}
+
+
 def test_camera_pair_term_zero_for_consistent_answers_and_prices_a_travel_error_by_its_length():
     batch = _camera_pair_case()
     config = LossConfig(weight_camera_pair=1.0)
-    pred = perfect(batch) | {"visibility_logit": 30.0 * (2 * batch["visibility"] - 1),
-                             "confidence": torch.ones(batch["valid"].shape)}
+    pred = _exact_answers(batch)
     _, terms = d4rt_loss(pred, batch, config)
     assert terms["camera_pair"] < 1e-5
     _, terms = d4rt_loss(pred | {"points": 3.0 * batch["points"]}, batch, config)  # any scale: still exact
@@ -475,8 +480,7 @@ def test_camera_pair_term_zero_for_consistent_answers_and_prices_a_travel_error_
 def test_camera_pair_direction_term_prices_the_travel_direction_not_its_length():
     batch = _camera_pair_case()
     config = LossConfig(weight_camera_pair_direction=1.0)
-    pred = perfect(batch) | {"visibility_logit": 30.0 * (2 * batch["visibility"] - 1),
-                             "confidence": torch.ones(batch["valid"].shape)}
+    pred = _exact_answers(batch)
     _, terms = d4rt_loss(pred, batch, config)
     assert terms["camera_pair_direction"] < 1e-4
     # Each pair's answer moved so that its travel doubles: the same direction, so still (almost) free.

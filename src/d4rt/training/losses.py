@@ -62,15 +62,14 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   square) pushes every pair with the same force, however short its step (stage 10's lesson for the pose
   head). Stage 86.
 - *Camera-pair direction* (not in paper; ``weight_camera_pair_direction`` > 0, the same pairs): the distance
-  between the unit direction of the true travel and the predicted travel divided by its length, the length
-  floored at ``_MIN_PAIR_TRAVEL_LENGTH`` (both in units of each side's per-clip mean depth), on the pairs whose true
-  travel is at least ``_MIN_PAIR_TRAVEL`` (a camera turning on the spot has no direction to learn, and a
-  step's direction moves the chained path by its length). Why: the
-  shipped chain's step translations point 83-92% along the optical axis with median cosine 0.16-0.32 to the true
-  step, while re-chaining its steps with the true translations halves its ATE (stage 118's camera probe,
-  docs/training.md); the camera-pair term prices the travel's error by its length, so the short steps of most
-  clips, whose direction is as much of the path as a long step's, cost it almost nothing. The floor keeps the
-  gradient finite where the predicted travel vanishes (there the term is 1 and pushes it out along the truth).
+  between the unit direction of the true travel and the predicted travel divided by its length, the length floored
+  at ``_MIN_PAIR_TRAVEL_LENGTH`` (both in units of each side's per-clip mean depth), on the pairs whose true travel is
+  at least ``_MIN_PAIR_TRAVEL`` (a camera turning on the spot has no direction to learn, and a step's direction moves
+  the chained path by its length). Why: the shipped chain's step translations pointed 83-92% along the optical axis
+  (median cosine 0.16-0.32 with the true step), and the camera-pair term prices a travel's error by its length, so
+  the direction of the many short steps cost it almost nothing. The floor keeps the gradient finite where the
+  predicted travel vanishes (there the term is 1 and pushes it out along the truth). Stage 120 (docs/training.md):
+  it turned the steps (median cosine 0.21 -> 0.59) and the chained path got worse; not in any shipped recipe.
 - *Log depth* (not in paper; ``weight_log_depth`` > 0): ``|log(z_pred / s_pred) - log(z_target / s_target)|``
   on the queries whose target lies in front of camera t_cam, each side divided by its own per-clip mean
   depth ``s`` (as L3D, so the term is scale-invariant). Why: L3D's log-compressed coordinates weigh the ratio
