@@ -55,6 +55,8 @@ launch)
 import json, sys
 rows = [json.loads(line) for line in open(sys.argv[1])]
 c = [r["loss/confidence_mean"] for r in rows if 201 <= r["step"] <= 400 and "loss/confidence_mean" in r]
+if not c:
+    sys.exit(f"no loss/confidence_mean logged over steps 201-400 in {sys.argv[1]}: stop rule cannot be read")
 mean = sum(c) / len(c)
 print(f"mean confidence over steps 201-400: {mean:.3f} ({len(c)} logged steps) -> {'judge' if mean >= 0.6 else 'stop'}")
 sys.exit(0 if mean >= 0.6 else 1)
