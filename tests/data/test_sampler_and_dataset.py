@@ -262,6 +262,17 @@ def test_variable_clip_lengths_and_depth_queries(tmp_path):
     assert 0.5 < pair.float().mean() < 0.75 and q[:, 2:].min() >= 0 and q[:, 2:].max() <= 4
     with pytest.raises(UserError, match="adjacent_camera_fraction"):
         QuerySamplerConfig(adjacent_camera_fraction=1.5).validate()
+    # Pairs over gaps of up to k frames: every gap 1..k drawn, each inside the clip, even where only one side fits.
+    cfg = DatasetConfig(num_clips=4, frames=5, size=(32, 32), render_pixels=32 * 32,
+                        sampler=QuerySamplerConfig(num_queries=2000, adjacent_camera_fraction=1.0,
+                                                   camera_pair_max_gap=3))
+    q = ClipQueryDataset(cfg)[0]["queries"]
+    gaps = (q[:, 4] - q[:, 2]).abs()
+    assert (q[:, 2] == q[:, 3]).all() and set(gaps.long().tolist()) == {1, 2, 3}
+    assert q[:, 2:].min() >= 0 and q[:, 2:].max() <= 4
+    assert gaps[q[:, 2] == 2].max() == 2  # the middle of 5 frames: no gap of 3 fits either side
+    with pytest.raises(UserError, match="camera_pair_max_gap must be an integer >= 1"):
+        QuerySamplerConfig(camera_pair_max_gap=0).validate()
     from d4rt.training import TrainConfig
 
     config = TrainConfig.from_dict({"data": {"batch_size": 2, "dataset": {"frames": 8, "frame_choices": [8, 16],

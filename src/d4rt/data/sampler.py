@@ -3,7 +3,8 @@
 Per clip, ``num_queries`` queries (u, v, t_src, t_tgt, t_cam):
 - t_src, t_tgt, t_cam uniform over the frames, then t_cam := t_tgt with probability 0.4;
   (not in paper, both off by default) a ``depth_fraction`` of depth queries and an
-  ``adjacent_camera_fraction`` of camera-pair queries (t_tgt = t_src, t_cam a neighbouring frame);
+  ``adjacent_camera_fraction`` of camera-pair queries (t_tgt = t_src, t_cam a neighbouring frame, or up to
+  ``camera_pair_max_gap`` frames away);
 - a ``boundary_fraction`` (30%) of the (u, v) drawn from pixels within ``boundary_radius`` pixels of a
   depth or motion boundary (Sobel filter on log-depth and on the scene flow), the rest uniform;
   (not in paper, off by default) an ``object_fraction`` of the others drawn from the pixels of foreground
@@ -42,6 +43,12 @@ class QuerySamplerConfig:
     # above (it overrides them); 0 is the paper's sampler. Why: Reconstruction's pose_pairs="adjacent" asks
     # exactly these, and the uniform draws give them only ~2/T of the time.
     adjacent_camera_fraction: float = 0.0
+    # (not in paper) The largest gap k of those camera pairs: t_cam = t_src +- k with k drawn uniformly from
+    # 1..camera_pair_max_gap (1: the neighbouring frame only, as before). Why: one frame's true travel is a
+    # twentieth of the clip's mean depth, half what the tiny models' two answers about one point disagree by,
+    # so a one-frame pair prices mostly that disagreement; over k frames the travel and its parallax grow k-fold
+    # (stage 124, docs/training.md).
+    camera_pair_max_gap: int = 1
     # (not in paper, off by default) Give each camera-pair query a twin: another query of the same pixel and
     # frame seen in its own camera (t_tgt = t_cam = t_src), written over a query that is not a pair. Why: the
     # camera chain reads a step's travel from exactly such twins (the same surface point in cameras i and
@@ -64,6 +71,8 @@ class QuerySamplerConfig:
                      "object_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise UserError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if not isinstance(self.camera_pair_max_gap, int) or self.camera_pair_max_gap < 1:
+            raise UserError(f"camera_pair_max_gap must be an integer >= 1, got {self.camera_pair_max_gap!r}")
         if self.camera_pair_twins and self.adjacent_camera_fraction <= 0:
             raise UserError("camera_pair_twins needs adjacent_camera_fraction > 0 (the pairs it twins)")
         if self.boundary_radius < 0:
@@ -191,6 +200,10 @@ class QuerySampler:
         if cfg.adjacent_camera_fraction > 0 and t_view > 1:  # likewise drawn only when asked for
             pair = rng.uniform(size=n) < cfg.adjacent_camera_fraction
             step = np.where(rng.uniform(size=n) < 0.5, -1, 1)
+            if cfg.camera_pair_max_gap > 1:  # drawn only when asked for: the one-frame stream stays as it was
+                gap = rng.integers(1, cfg.camera_pair_max_gap + 1, n)
+                # No longer than the frames on the longer side of t_src, so one direction always fits.
+                step = step * np.minimum(gap, np.maximum(t_src, t_view - 1 - t_src))
             neighbour = t_src + step
             neighbour = np.where((neighbour < 0) | (neighbour >= t_view), t_src - step, neighbour)
             t_tgt = np.where(pair, t_src, t_tgt)
