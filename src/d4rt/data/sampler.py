@@ -46,8 +46,9 @@ class QuerySamplerConfig:
     # (not in paper) The largest gap k of those camera pairs: t_cam = t_src +- k with k drawn uniformly from
     # 1..camera_pair_max_gap (1: the neighbouring frame only, as before). Why: one frame's true travel is a
     # twentieth of the clip's mean depth, half what the tiny models' two answers about one point disagree by,
-    # so a one-frame pair prices mostly that disagreement; over k frames the travel and its parallax grow k-fold
-    # (stage 124, docs/training.md).
+    # so a one-frame pair prices mostly that disagreement; over k frames the travel and its parallax grow k-fold.
+    # Measured (stage 124, docs/training.md): the disagreement grew with the gap as the travel did, the depth paid
+    # for it, and no shipped recipe uses it.
     camera_pair_max_gap: int = 1
     # (not in paper, off by default) Give each camera-pair query a twin: another query of the same pixel and
     # frame seen in its own camera (t_tgt = t_cam = t_src), written over a query that is not a pair. Why: the
