@@ -613,3 +613,37 @@ def test_aligned_depth_term_in_view_prices_the_queries_seen_in_their_own_frame_u
     assert only_depth != pytest.approx(expected, rel=1e-2)  # queries 0 and 3 alone: another fit and mean
     with pytest.raises(UserError, match="aligned_depth_queries must be one of depth, in_view"):
         LossConfig(aligned_depth_queries="all").validate()
+
+
+def test_camera_pair_rotation_term_reads_the_rotation_between_a_pairs_answers_not_their_travel():
+    from d4rt.training.losses import camera_pair_rotations
+    batch = _camera_pair_case()
+    config = LossConfig(weight_camera_pair_rotation=1.0)
+    pred = _exact_answers(batch)
+    _, terms = d4rt_loss(pred, batch, config)
+    assert terms["camera_pair_rotation"] < 1e-4
+    valid, twin = batch["valid"], batch["twin"]
+    pairs = twin >= 0
+    s = mean_depth(batch["points"], valid)
+    _, _, usable = camera_pair_rotations(batch["points"], batch["points"], valid, batch, s, s)
+    assert usable.sum() >= 4  # the rendered pairs determine rotations
+    # Every pair's answer moved by one vector (a travel error, no rotation): still free; scale-invariant too.
+    shifted = batch["points"] + torch.where(pairs[..., None], torch.tensor([0.05, -0.02, 0.03]), 0.0)
+    _, terms = d4rt_loss(pred | {"points": shifted}, batch, config)
+    assert terms["camera_pair_rotation"] < 1e-4
+    _, terms = d4rt_loss(pred | {"points": 2.5 * batch["points"]}, batch, config)
+    assert terms["camera_pair_rotation"] < 1e-4
+    # Every pair's answer turned by 2 degrees about the camera's y axis (its twin exact): the rigid fit between the two
+    # answers is off by that rotation, which the term reads (linearised: to a few percent).
+    angle = math.radians(2.0)
+    turn = torch.tensor([[math.cos(angle), 0.0, math.sin(angle)], [0.0, 1.0, 0.0],
+                         [-math.sin(angle), 0.0, math.cos(angle)]])
+    turned = torch.where(pairs[..., None], batch["points"] @ turn.T, batch["points"]).requires_grad_(True)
+    total, terms = d4rt_loss(pred | {"points": turned}, batch, config)
+    assert terms["camera_pair_rotation"].item() == pytest.approx(angle, rel=0.05)
+    total.backward()
+    assert torch.isfinite(turned.grad).all() and turned.grad.abs().sum() > 0
+    with pytest.raises(UserError, match="camera_pair_twins: true"):
+        d4rt_loss(pred, {k: v for k, v in batch.items() if k != "twin"}, config)
+    with pytest.raises(UserError, match="weight_camera_pair_rotation must be a number >= 0"):
+        LossConfig(weight_camera_pair_rotation=-1.0).validate()

@@ -70,6 +70,7 @@ def test_strict_loading_names_the_field(data, message):
     ({"loss": {"weight_dense_depth": 1.0}}, "needs model.overrides.dense_depth_head: true"),
     ({"loss": {"weight_camera_pair": 1.0}}, "needs data.dataset.sampler.camera_pair_twins: true"),
     ({"loss": {"weight_camera_pair_direction": 1.0}}, "needs data.dataset.sampler.camera_pair_twins: true"),
+    ({"loss": {"weight_camera_pair_rotation": 1.0}}, "needs data.dataset.sampler.camera_pair_twins: true"),
 ])
 def test_inconsistent_configs_are_refused(data, message):
     base = {"data": {"dataset": {"frames": 8, "size": [64, 64]}}}

@@ -226,12 +226,10 @@ class TrainConfig:
         if self.loss.weight_dense_depth > 0 and data.tracks is not None:
             raise UserError("loss.weight_dense_depth needs depth maps, which data.tracks clips do not have")
         twins = data.tracks is None and data.dataset.sampler.camera_pair_twins
-        if self.loss.weight_camera_pair_direction > 0 and not twins:
-            raise UserError("loss.weight_camera_pair_direction needs data.dataset.sampler.camera_pair_twins: true "
-                            "(rendered or file clips, not data.tracks)")
-        if self.loss.weight_camera_pair > 0 and not twins:
-            raise UserError("loss.weight_camera_pair needs data.dataset.sampler.camera_pair_twins: true "
-                            "(rendered or file clips, not data.tracks)")
+        for term in ("weight_camera_pair", "weight_camera_pair_direction", "weight_camera_pair_rotation"):
+            if getattr(self.loss, term) > 0 and not twins:
+                raise UserError(f"loss.{term} needs data.dataset.sampler.camera_pair_twins: true "
+                                "(rendered or file clips, not data.tracks)")
         if self.loss.attention_block is not None and self.loss.attention_block >= model.decoder_depth:
             raise UserError(f"loss.correspondence_block must be below the decoder's {model.decoder_depth} blocks, "
                             f"got {self.loss.attention_block}")

@@ -70,6 +70,19 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   the direction of the many short steps cost it almost nothing. The floor keeps the gradient finite where the
   predicted travel vanishes (there the term is 1 and pushes it out along the truth). Stage 120 (docs/training.md):
   it turned the steps (median cosine 0.21 -> 0.59) and the chained path got worse; not in any shipped recipe.
+- *Camera-pair rotation* (not in paper; ``weight_camera_pair_rotation`` > 0, the same pairs): per clip and camera
+  pair (t_src, t_cam), the small rotation (radians) that best explains, by least squares, how the pairs' predicted
+  travels vary with where their twins lie (each side centred on the group's mean), ``omega`` solving
+  ``sum (|d|^2 I - d d^T) omega = sum d x r`` with d the twin's answer turned by the true rotation and r the travel,
+  both in units of the prediction's mean depth; the same for the target (0 for exact answers: a rigid motion moves
+  every point of a pair by one travel); the term is the mean over the groups of ``|omega_pred - omega_target|``. It is
+  the rotation error of the rigid fit the camera recipe makes from those answers, linearised. Groups with fewer than
+  three pairs or whose twins lie nearly on a line (the smallest eigenvalue of the matrix per pair below
+  ``_MIN_PAIR_SPREAD``) are left out. Why: the camera-pair term prices each pair's travel under the TRUE rotation,
+  so the rotation the answers encode between two cameras is never priced, and on held-out clips the chained
+  one-frame fits' rotation was as far from the truth as no rotation at all; with the true rotation and each step's
+  translation refitted under it, the start's held-out ATE fell 0.0349 -> 0.0313 and the in-view weights' 0.0482 ->
+  0.0364 (stage 125, docs/training.md). Not yet trained in any stage.
 - *Log depth* (not in paper; ``weight_log_depth`` > 0): ``|log(z_pred / s_pred) - log(z_target / s_target)|``
   on the queries whose target lies in front of camera t_cam, each side divided by its own per-clip mean
   depth ``s`` (as L3D, so the term is scale-invariant). Why: L3D's log-compressed coordinates weigh the ratio
@@ -165,6 +178,10 @@ _MIN_RAY_SPREAD = 1e-3
 # length below which a predicted travel's direction is priced as if it were that long.
 _MIN_PAIR_TRAVEL = 1e-2
 _MIN_PAIR_TRAVEL_LENGTH = 1e-2
+# The camera-pair rotation term: the smallest eigenvalue of a group's lever-arm matrix per pair (in squared mean
+# depths) it fits a rotation from; below it the twins lie nearly on a line or a point and the rotation about that
+# line is undetermined (a 64-pixel frame's points spread over tenths of the mean depth: eigenvalues ~1e-2).
+_MIN_PAIR_SPREAD = 1e-4
 
 
 @dataclass
@@ -212,6 +229,7 @@ class LossConfig:
     weight_pose_translation: float | None = None
     weight_camera_pair: float = 0.0
     weight_camera_pair_direction: float = 0.0
+    weight_camera_pair_rotation: float = 0.0
     weight_log_depth: float = 0.0
     weight_aligned_depth: float = 0.0
     aligned_depth_alignment: str = "scale&shift"
@@ -230,7 +248,8 @@ class LossConfig:
     def validate(self) -> None:
         optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
-                     "weight_normal", "weight_pose", "weight_camera_pair", "weight_camera_pair_direction", "weight_log_depth", "weight_aligned_depth",
+                     "weight_normal", "weight_pose", "weight_camera_pair", "weight_camera_pair_direction",
+                     "weight_camera_pair_rotation", "weight_log_depth", "weight_aligned_depth",
                      "weight_ray_angle", "weight_dense_depth", "weight_correspondence", *optional):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
@@ -451,7 +470,8 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         ``(total, terms)``: the scalar to minimise and a dict of detached scalars, each unweighted:
         ``3d`` (plain L3D), ``3d_confident`` (c * L3D), ``confidence`` (-log c), ``2d``, ``visibility``,
         ``motion``, ``normal``, plus ``confidence_mean`` (mean c) and ``valid_fraction``, ``uv_fraction``;
-        with their weights > 0 also ``pose_rotation``, ``pose_translation``, ``camera_pair``, ``log_depth``,
+        with their weights > 0 also ``pose_rotation``, ``pose_translation``, ``camera_pair``,
+        ``camera_pair_direction``, ``camera_pair_rotation``, ``log_depth``,
         ``aligned_depth``, ``ray_angle``, ``dense_depth`` and ``correspondence``.
     """
     config = config or LossConfig()
@@ -512,6 +532,11 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
             p["points"], target_points, valid, batch, mean_depth(p["points"], valid).detach(),
             mean_depth(target_points, valid))
         total = total + config.weight_camera_pair_direction * optional_terms["camera_pair_direction"]
+    if config.weight_camera_pair_rotation > 0:
+        optional_terms["camera_pair_rotation"] = camera_pair_rotation_loss(
+            p["points"], target_points, valid, batch, mean_depth(p["points"], valid).detach(),
+            mean_depth(target_points, valid))
+        total = total + config.weight_camera_pair_rotation * optional_terms["camera_pair_rotation"]
     if config.weight_log_depth > 0:
         log_depth, in_front = log_depth_loss(p["points"], target_points, valid)
         optional_terms["log_depth"] = masked_mean(log_depth, in_front)
@@ -640,6 +665,73 @@ def camera_pair_direction_loss(pred_points: torch.Tensor, target_points: torch.T
     distance = ((predicted_direction - true_direction).square().sum(-1) + 1e-12).sqrt()
     return masked_mean(distance, moved)
 
+
+def camera_pair_rotations(pred_points: torch.Tensor, target_points: torch.Tensor, valid: torch.Tensor,
+                          batch: dict[str, torch.Tensor], pred_scale: torch.Tensor,
+                          target_scale: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Per clip and camera pair (t_src, t_cam), the linearised rotation error of the rigid fit between the pairs'
+    answers and their twins' (module docstring), for the prediction and the target. Arguments as
+    :func:`camera_pair_travels`. Returns ``(omega_pred (G, 3), omega_target (G, 3), usable (G,) bool)`` over
+    G = B * T * T groups (T the batch's frames), radians; groups that are not ``usable`` hold zeros."""
+    queries = batch["queries"]
+    frames = batch["cam_to_world"].shape[1]
+    groups = queries.shape[0] * frames * frames
+    clip = torch.arange(queries.shape[0], device=queries.device)[:, None]
+    group = ((clip * frames + queries[..., 2].round().long()) * frames + queries[..., 4].round().long())
+    rotation = source_to_camera(batch)[..., :3, :3]
+    twin = batch["twin"].long().clamp_min(0)
+
+    def omega(points: torch.Tensor, scale: torch.Tensor, paired: torch.Tensor):
+        twins = torch.gather(points, 1, twin[..., None].expand(-1, -1, 3))
+        arm = (rotation @ twins[..., None])[..., 0] / scale[:, None, None]  # the twin seen from camera t_cam
+        travel = points / scale[:, None, None] - arm
+        ids = group[paired]
+        count = torch.zeros(groups, device=points.device, dtype=points.dtype).index_add_(
+            0, ids, torch.ones_like(ids, dtype=points.dtype))
+
+        def group_mean(x: torch.Tensor) -> torch.Tensor:
+            sums = torch.zeros(groups, 3, device=x.device, dtype=x.dtype).index_add_(0, ids, x[paired])
+            return sums / count.clamp_min(1)[:, None]
+
+        d = (arm - group_mean(arm)[group])[paired]
+        r = (travel - group_mean(travel)[group])[paired]
+        lever = (d.square().sum(-1)[:, None, None] * torch.eye(3, device=d.device, dtype=d.dtype)
+                 - d[:, :, None] * d[:, None, :])
+        matrix = torch.zeros(groups, 3, 3, device=d.device, dtype=d.dtype).index_add_(0, ids, lever)
+        moment = torch.zeros(groups, 3, device=d.device, dtype=d.dtype).index_add_(
+            0, ids, torch.linalg.cross(d, r))
+        return matrix, moment, count
+
+    pair_mask = (batch["twin"] >= 0) & valid & torch.gather(valid, 1, twin)
+    pred_matrix, pred_moment, count = omega(pred_points, pred_scale, pair_mask)
+    target_matrix, target_moment, _ = omega(target_points, target_scale, pair_mask)
+    with torch.no_grad():  # which groups determine a rotation: enough pairs spread off a line, on both sides
+        smallest = torch.minimum(torch.linalg.eigvalsh(pred_matrix)[:, 0], torch.linalg.eigvalsh(target_matrix)[:, 0])
+        usable = (count >= 3) & (smallest >= _MIN_PAIR_SPREAD * count)
+    eye = torch.eye(3, device=pred_matrix.device, dtype=pred_matrix.dtype)
+
+    def solve(matrix: torch.Tensor, moment: torch.Tensor) -> torch.Tensor:
+        safe = torch.where(usable[:, None, None], matrix, eye)  # unusable groups: a harmless system, zeroed below
+        return torch.where(usable[:, None], torch.linalg.solve(safe, moment), 0.0)
+
+    return solve(pred_matrix, pred_moment), solve(target_matrix, target_moment), usable
+
+
+def camera_pair_rotation_loss(pred_points: torch.Tensor, target_points: torch.Tensor, valid: torch.Tensor,
+                              batch: dict[str, torch.Tensor], pred_scale: torch.Tensor,
+                              target_scale: torch.Tensor) -> torch.Tensor:
+    """The camera-pair rotation term (module docstring): mean over the usable groups of :func:`camera_pair_rotations`
+    of ``|omega_pred - omega_target|`` (radians). Arguments as :func:`camera_pair_travels`; returns a scalar (0, still
+    attached to the graph, without usable groups)."""
+    if "twin" not in batch:
+        raise UserError("the camera-pair loss terms need batches with twin queries: set "
+                        "data.dataset.sampler.camera_pair_twins: true")
+    if "cam_to_world" not in batch:
+        raise UserError("the camera-pair loss terms need cam_to_world in every training sample")
+    predicted, true, usable = camera_pair_rotations(pred_points, target_points, valid, batch, pred_scale,
+                                                    target_scale)
+    length = ((predicted - true).square().sum(-1) + 1e-12).sqrt()
+    return masked_mean(length, usable)
 
 def _zero_where_missing(target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     """``target`` (B, N, ...) with the entries of queries outside ``mask`` (B, N) set to 0."""
