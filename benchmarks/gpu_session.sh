@@ -140,7 +140,10 @@ lease)  # a 15-minute lease in two calls: this one (<= 600 s) trains for TRAIN_S
   # ECHO=E: E samples per rendered clip (data echoing, stage 46). The loaders bound the run (the second lease);
   # echo 2 doubled the samples a second on an H200 (the third lease), so it is the default; ECHO=1 turns it off
   INIT+=(--set data.dataset.echo=${ECHO:-2})
-  timeout -s TERM $PART_A_S python3 -m d4rt train --config $CONFIG --out $RUN --max-steps 300 --no-progress \
+  # Part A ends at the config's warm-up (at most 300 steps): past it the cosine would follow part A's own length, and
+  # the resumed run's rates would jump back up (the sixth lease: a warm-up of 150 reached at 3 steps/s).
+  PART_A_STEPS=$(python3 -c "import sys, yaml; print(min(300, yaml.safe_load(open(sys.argv[1]))['optim']['warmup_steps']))" $CONFIG)
+  timeout -s TERM $PART_A_S python3 -m d4rt train --config $CONFIG --out $RUN --max-steps $PART_A_STEPS --no-progress \
     "${INIT[@]}" > $G/train-a.log 2>&1 || true
   if ! python3 -c "import json, sys; sys.exit(0 if max(json.loads(l)['step'] for l in open('$RUN/metrics.jsonl')) >= 20 else 1)" 2>/dev/null; then
     tail -n 20 $G/train-a.log
