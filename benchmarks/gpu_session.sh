@@ -14,8 +14,8 @@
 #   (CONFIG=configs/tiny-gpu-continue.yaml INIT_FROM=src/d4rt/assets/d4rt-tiny: the shipped tiny model trained on
 #   instead, a lease whose product can ship; docs/training.md "A lease that can ship")
 #   bash benchmarks/gpu_session.sh collect  # only if the bench was still running: waits WAIT_S (150 s) for it
-# Each call writes into $OUT: weights.tar.part-aa, -ab, ... (model.safetensors, config.json, metrics.jsonl and
-# train_config.yaml of the run, split under the tool's 16 MiB per file), progress.txt, and at the end bench-gpu.json.
+# Each call writes into $OUT: weights.tar.part-aa, -ab, ... (model.safetensors, config.json, metrics.jsonl,
+# train_config.yaml, hardware.json and the newest checkpoint of the run, split under the tool's 16 MiB per file), progress.txt, and at the end bench-gpu.json.
 # Join them here:  mkdir -p W && cat FILES_AT/weights.tar.part-* | tar -x -C W   (W is then a checkpoint).
 # TRAIN_S (default 900) is the training's wall budget from the start of `start`; the rest of the 1,800 s goes to
 # the machine's start (about 1.5 min, counted), the transfers between calls and the bench, which needs about 8 minutes
@@ -40,7 +40,18 @@ running() { [ -f $G/pid ] && kill -0 "$(cat $G/pid)" 2>/dev/null; }
 snapshot() {  # the run's latest weights (written at every checkpoint) and log, in pieces the tool brings back
   rm -f $OUT/weights.tar.part-*
   if [ -f $RUN/model.safetensors ]; then
-    tar -C $RUN -cf - model.safetensors config.json metrics.jsonl train_config.yaml | split -b 15m - $OUT/weights.tar.part-
+    # With them the newest whole checkpoint (its weights are the top-level file's hard link; the optimiser adds about
+    # 37 MB for the tiny preset) and the machine's description, so that tools/training_summary.py can describe the
+    # run and `d4rt train --resume` can continue it after the lease (the sixth lease brought back neither).
+    LAST=$(cd $RUN && ls -d checkpoints/step-* 2>/dev/null | tail -n 1)
+    python3 -c 'import json, os, shutil, subprocess, torch
+smi = shutil.which("nvidia-smi") and subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"],
+                                                    capture_output=True, text=True).stdout.strip()
+gpu = smi.splitlines()[0] if smi else torch.cuda.get_device_name() if torch.cuda.is_available() else None
+print(json.dumps({"gpu": gpu, "logical_cpus": os.cpu_count(), "torch": torch.__version__, "cuda": torch.version.cuda}))' \
+      > $RUN/hardware.json
+    tar -C $RUN -cf - model.safetensors config.json metrics.jsonl train_config.yaml hardware.json $LAST \
+      | split -b 15m - $OUT/weights.tar.part-
   fi
   { echo "phase $PHASE at ${1:-?} s"; tail -n 3 $RUN/metrics.jsonl 2>/dev/null || true
     tail -n 5 $G/train-*.log 2>/dev/null || true; } > $OUT/progress.txt

@@ -138,19 +138,32 @@ def stage_summary(training: dict, previous: int | None) -> str:
                    else f"{min(frames)}-{max(frames)} frames (drawn from {', '.join(map(str, frames))})")
     crops = {"paper": "the paper's random crops", "centered": "centred crops",
              "none": "whole frames (no crop)"}[dataset.get("augment", {}).get("crop_policy", "paper")]
+    echo = dataset.get("echo", 1)  # data echoing: each rendered clip sampled `echo` times (other queries each time)
     source = "rendered on the fly (each seen once)" if dataset["source"] == "render" else "read from files"
+    clips = f"{training['clips_seen']:,} synthetic clips {source}"
+    if echo > 1:
+        clips = (f"{training['clips_seen']:,} samples of {training['clips_seen'] // echo:,} synthetic clips rendered "
+                 f"on the fly (each sampled {echo} times)")
     start = (f"from {training['starts_from']}; " if training.get("starts_from")
              else f"from stage {previous}'s weights; " if previous is not None else "from scratch; ")
     when = ("in several runs, each resumed from the previous one's last checkpoint" if training["resumed"] else
             f"{training['wall_seconds'] / 60:.0f} min wall time with validation and checkpoints")
-    return (f"{start}{training['clips_seen']:,} synthetic clips {source}, {frames_text} at "
+    return (f"{start}{clips}, {frames_text} at "
             f"{training['input_size'][0]}x{training['input_size'][1]}, {crops}, "
             f"{training['queries_per_clip']:,} queries per clip; {training['steps']:,} steps of "
             f"{training['clips_per_step']} clip{'s' if training['clips_per_step'] > 1 else ''}, peak lr {config['optim']['lr']:g}; "
             f"{training['training_seconds'] / 60:.0f} min of optimiser steps "
-            f"({training['steps'] / training['training_seconds']:.2f} steps/s), {when}; CPU only: {hw['cpu']}, "
-            f"{hw['logical_cpus']} logical cores (shared), {hw.get('torch_threads', '?')} torch thread(s), "
-            f"torch {hw['torch']}, {config['run']['precision']}")
+            f"({training['steps'] / training['training_seconds']:.2f} steps/s), {when}; {machine_text(hw, config)}")
+
+
+def machine_text(hw: dict, config: dict) -> str:
+    """Where a stage trained: a GPU lease's machine (``hw["gpu"]``) or a CPU."""
+    precision = config["run"]["precision"]
+    if hw.get("gpu"):  # `auto` is bf16 autocast on a GPU (d4rt.training.config.RunConfig)
+        return (f"one {hw['gpu']} with {hw['logical_cpus']} CPU cores rendering clips, torch {hw['torch']}, "
+                f"{'bf16' if precision == 'auto' else precision}")
+    return (f"CPU only: {hw['cpu']}, {hw['logical_cpus']} logical cores (shared), {hw.get('torch_threads', '?')} "
+            f"torch thread(s), torch {hw['torch']}, {precision}")
 
 
 def results_section(evaluation: dict) -> str:

@@ -5,7 +5,8 @@
 
 Reads the newest checkpoint's ``trainer.json`` (step, samples consumed, the training config), the
 run's ``metrics.jsonl`` (throughput of every logged window) and the model's ``config.json``, and
-records the machine this script runs on (run it where the training ran). Times:
+records the machine this script runs on (run it where the training ran), or the one a GPU lease's snapshot
+describes in ``hardware.json``. Times:
 
 - ``training_seconds``: the sum of the logged windows (optimiser steps and data loading), which the
   trainer measures without validation and checkpoint writes;
@@ -30,6 +31,16 @@ from d4rt.training.checkpoint import latest_checkpoint
 from d4rt.training.logger import read_metrics, training_seconds
 
 
+def hardware(run: Path, config: dict) -> dict:
+    """The machine the run trained on: ``run/hardware.json`` where the run brought one (a GPU lease's snapshot,
+    benchmarks/gpu_session.sh, written on the GPU machine), else this machine's, so run it where the training ran."""
+    written = run / "hardware.json"
+    if written.exists():
+        return {**json.loads(written.read_text()), "device": config["run"]["device"]}
+    return {"cpu": cpu_name(), "logical_cpus": os.cpu_count(), "device": config["run"]["device"],
+            "torch": torch.__version__, "torch_threads": torch.get_num_threads()}
+
+
 def summarise(run: Path, log: Path | None = None) -> dict:
     checkpoint = latest_checkpoint(run / "checkpoints")
     trainer = json.loads((checkpoint / "trainer.json").read_text())
@@ -51,8 +62,7 @@ def summarise(run: Path, log: Path | None = None) -> dict:
         "training_seconds": training_seconds(records, batch),
         "wall_seconds": (checkpoint / "trainer.json").stat().st_mtime - (run / "train_config.yaml").stat().st_mtime,
         "resumed": log is not None and "resumed from" in log.read_text(errors="replace"),
-        "hardware": {"cpu": cpu_name(), "logical_cpus": os.cpu_count(), "device": config["run"]["device"],
-                     "torch": torch.__version__, "torch_threads": torch.get_num_threads()},
+        "hardware": hardware(run, config),
         "config": config,
     }
 

@@ -17,3 +17,22 @@ def test_an_average_of_averages_is_written_with_brackets_and_kept_steps():
     nested = {"stages": [inner, 25], "weights": [0.5, 0.5], "steps": {"25": 3500}}
     assert model_card.average_text(nested) == ("0.5 x (0.5 x (0.5 x stage 2 + 0.5 x stage 4) + 0.5 x stage 21 "
                                                "(its step 4,000)) + 0.5 x stage 25 (its step 3,500)")
+
+
+def test_a_stage_trained_on_a_lent_gpu_names_the_gpu_and_the_echoed_clips():
+    """A GPU lease's run (benchmarks/gpu_session.sh brings its hardware.json back) is described by its GPU, and
+    data echoing by the clips rendered as well as the samples drawn from them."""
+    config = {"data": {"dataset": {"source": "render", "frames": 24, "echo": 2, "augment": {"crop_policy": "none"}}},
+              "optim": {"lr": 5e-5}, "run": {"precision": "auto"}}
+    training = {"hardware": {"gpu": "NVIDIA H200", "logical_cpus": 16, "torch": "2.9.0", "device": "auto"},
+                "config": config, "frames_per_clip": 24, "resumed": True, "clips_seen": 21952, "input_size": [64, 64],
+                "queries_per_clip": 1024, "steps": 1372, "clips_per_step": 16, "training_seconds": 460.0,
+                "starts_from": "the weights shipped before it"}
+    row = model_card.stage_summary(training, previous=118)
+    assert row.startswith("from the weights shipped before it; 21,952 samples of 10,976 synthetic clips rendered on "
+                          "the fly (each sampled 2 times), 24 frames at 64x64, whole frames (no crop)")
+    assert row.endswith("one NVIDIA H200 with 16 CPU cores rendering clips, torch 2.9.0, bf16")
+    cpu = {**training, "hardware": {"cpu": "AMD EPYC", "logical_cpus": 2, "torch": "2.13.0+cpu", "torch_threads": 1},
+           "config": {**config, "run": {"precision": "fp32"}}}
+    assert model_card.stage_summary(cpu, previous=118).endswith(
+        "CPU only: AMD EPYC, 2 logical cores (shared), 1 torch thread(s), torch 2.13.0+cpu, fp32")
