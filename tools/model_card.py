@@ -160,7 +160,8 @@ def machine_text(hw: dict, config: dict) -> str:
     """Where a stage trained: a GPU lease's machine (``hw["gpu"]``) or a CPU."""
     precision = config["run"]["precision"]
     if hw.get("gpu"):  # `auto` is bf16 autocast on a GPU (d4rt.training.config.RunConfig)
-        return (f"one {hw['gpu']} with {hw['logical_cpus']} CPU cores rendering clips, torch {hw['torch']}, "
+        torch = f"torch {hw['torch']}" if hw.get("torch") else "torch version not recorded"
+        return (f"one {hw['gpu']} with {hw['logical_cpus']} CPU cores rendering clips, {torch}, "
                 f"{'bf16' if precision == 'auto' else precision}")
     return (f"CPU only: {hw['cpu']}, {hw['logical_cpus']} logical cores (shared), {hw.get('torch_threads', '?')} "
             f"torch thread(s), torch {hw['torch']}, {precision}")

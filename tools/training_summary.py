@@ -24,6 +24,7 @@ import shutil
 from pathlib import Path
 
 import torch
+import yaml
 
 from d4rt.devices import cpu_name
 from d4rt.model import D4RT
@@ -43,24 +44,32 @@ def hardware(run: Path, config: dict) -> dict:
 
 def summarise(run: Path, log: Path | None = None) -> dict:
     checkpoint = latest_checkpoint(run / "checkpoints")
-    trainer = json.loads((checkpoint / "trainer.json").read_text())
-    config = trainer["config"]
     records = read_metrics(run)
-    model = D4RT.from_pretrained(checkpoint)
+    if checkpoint is not None:
+        trainer = json.loads((checkpoint / "trainer.json").read_text())
+        config, step, samples, written = trainer["config"], trainer["step"], trainer["next_sample"], checkpoint
+    else:  # a run brought back without its checkpoints (the sixth GPU lease): its final weights, config and log
+        config = yaml.safe_load((run / "train_config.yaml").read_text())
+        if any(r.get("skipped_steps") for r in records):
+            raise SystemExit(f"{run}: no checkpoint, and the log counts skipped steps: its samples cannot be known")
+        step, written = records[-1]["step"], run
+        samples = step * config["data"]["batch_size"] * config["run"]["grad_accum"]  # one process, as a lease
+    model = D4RT.from_pretrained(written)
     batch = config["data"]["batch_size"] * config["run"]["grad_accum"]
     dataset = config["data"]["dataset"]
     return {
         "preset": config["model"]["preset"],
         "parameters": model.parameter_counts()["total"],
         "max_frames": model.config.max_frames,
-        "steps": trainer["step"],
-        "clips_seen": trainer["next_sample"],
+        "steps": step,
+        "clips_seen": samples,
         "clips_per_step": batch,
         "frames_per_clip": dataset["frames"],
         "input_size": dataset["size"],
         "queries_per_clip": dataset["sampler"]["num_queries"],
         "training_seconds": training_seconds(records, batch),
-        "wall_seconds": (checkpoint / "trainer.json").stat().st_mtime - (run / "train_config.yaml").stat().st_mtime,
+        "wall_seconds": (written / ("trainer.json" if checkpoint else "model.safetensors")).stat().st_mtime
+        - (run / "train_config.yaml").stat().st_mtime,
         "resumed": log is not None and "resumed from" in log.read_text(errors="replace"),
         "hardware": hardware(run, config),
         "config": config,
