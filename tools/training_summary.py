@@ -55,7 +55,7 @@ def summarise(run: Path, log: Path | None = None) -> dict:
         step, written = records[-1]["step"], run
         samples = step * config["data"]["batch_size"] * config["run"]["grad_accum"]  # one process, as a lease
     model = D4RT.from_pretrained(written)
-    batch = config["data"]["batch_size"] * config["run"]["grad_accum"]
+    batch = config["data"]["batch_size"] * config["run"]["grad_accum"]  # clips per optimiser step
     dataset = config["data"]["dataset"]
     return {
         "preset": config["model"]["preset"],
