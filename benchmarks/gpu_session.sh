@@ -15,7 +15,8 @@
 #   instead, a lease whose product can ship; docs/training.md "A lease that can ship")
 #   bash benchmarks/gpu_session.sh collect  # only if the bench was still running: waits WAIT_S (150 s) for it
 # Each call writes into $OUT: weights.tar.part-aa, -ab, ... (model.safetensors, config.json, metrics.jsonl,
-# train_config.yaml, hardware.json and the newest checkpoint of the run, split under the tool's 16 MiB per file), progress.txt, and at the end bench-gpu.json.
+# train_config.yaml, hardware.json and the newest checkpoint of the run, split under the tool's 16 MiB per file),
+# progress.txt, and at the end bench-gpu.json.
 # Join them here:  mkdir -p W && cat FILES_AT/weights.tar.part-* | tar -x -C W   (W is then a checkpoint).
 # TRAIN_S (default 900) is the training's wall budget from the start of `start`; the rest of the 1,800 s goes to
 # the machine's start (about 1.5 min, counted), the transfers between calls and the bench, which needs about 8 minutes
@@ -156,7 +157,7 @@ lease)  # a 15-minute lease in two calls: this one (<= 600 s) trains for TRAIN_S
   PART_A_STEPS=$(python3 -c "import sys, yaml; print(min(300, yaml.safe_load(open(sys.argv[1]))['optim']['warmup_steps']))" $CONFIG)
   timeout -s TERM $PART_A_S python3 -m d4rt train --config $CONFIG --out $RUN --max-steps $PART_A_STEPS --no-progress \
     "${INIT[@]}" > $G/train-a.log 2>&1 || true
-  if ! python3 -c "import json, sys; sys.exit(0 if max(json.loads(l)['step'] for l in open('$RUN/metrics.jsonl')) >= 20 else 1)" 2>/dev/null; then
+  if ! python3 -c "import json, sys; sys.exit(0 if max(json.loads(l)['step'] for l in open('$RUN/metrics.jsonl')) >= min(20, $PART_A_STEPS) else 1)" 2>/dev/null; then
     tail -n 20 $G/train-a.log
     echo "part A failed with clips rendered on the GPU; on with the CPU renderer"
     EXTRA=(--set data.dataset.render_device=cpu --set data.workers=$(( $(nproc) - 1 )))

@@ -1,4 +1,4 @@
-"""tools/training_summary.py: which machine a run is said to have trained on."""
+"""tools/training_summary.py: which machine a run is said to have trained on, and a run without checkpoints."""
 
 from __future__ import annotations
 
@@ -6,6 +6,12 @@ import importlib.util
 import json
 import os
 from pathlib import Path
+
+import pytest
+import yaml
+
+from d4rt.config import D4RTConfig
+from d4rt.model import D4RT
 
 SCRIPT = Path(__file__).resolve().parents[2] / "tools" / "training_summary.py"
 spec = importlib.util.spec_from_file_location("training_summary", SCRIPT)
@@ -29,12 +35,6 @@ def test_a_run_without_hardware_json_is_described_by_this_machine(tmp_path):
 def test_a_run_without_checkpoints_is_summarised_from_its_weights_config_and_log(tmp_path):
     """The sixth lease brought back final weights, train_config.yaml and metrics.jsonl but no checkpoint: the
     samples follow from the last logged step and the batch, and a log that counts skipped steps is refused."""
-    import pytest
-    import yaml
-
-    from d4rt.config import D4RTConfig
-    from d4rt.model import D4RT
-
     D4RT(D4RTConfig(name="tiny")).save_pretrained(tmp_path)
     config = {"model": {"preset": "tiny"}, "run": {"device": "auto", "grad_accum": 1},
               "data": {"batch_size": 16, "dataset": {"frames": 24, "size": [64, 64], "sampler": {"num_queries": 1024}}}}
