@@ -51,8 +51,14 @@ smi = shutil.which("nvidia-smi") and subprocess.run(["nvidia-smi", "--query-gpu=
 gpu = smi.splitlines()[0] if smi else torch.cuda.get_device_name() if torch.cuda.is_available() else None
 print(json.dumps({"gpu": gpu, "logical_cpus": os.cpu_count(), "torch": torch.__version__, "cuda": torch.version.cuda}))' \
       > $RUN/hardware.json
-    tar -C $RUN -cf - model.safetensors config.json metrics.jsonl train_config.yaml hardware.json $LAST \
-      | split -b 15m - $OUT/weights.tar.part-
+    # A call brings back at most 64 MiB in 8 files: a larger model's checkpoint (the grown enc10's weights and optimiser
+    # state, 77 MB) does not fit, and then the weights, config and log come back alone (not resumable after the lease).
+    FILES=(model.safetensors config.json metrics.jsonl train_config.yaml hardware.json)
+    if [ -n "$LAST" ] && [ "$(tar -C $RUN -cf - "${FILES[@]}" $LAST | wc -c)" -gt $(( 60 * 1024 * 1024 )) ]; then
+      echo "checkpoint $LAST too large to bring back (over 60 MiB with the weights): weights and log only"
+      LAST=
+    fi
+    tar -C $RUN -cf - "${FILES[@]}" $LAST | split -b 15m - $OUT/weights.tar.part-
   fi
   { echo "phase $PHASE at ${1:-?} s"; tail -n 3 $RUN/metrics.jsonl 2>/dev/null || true
     tail -n 5 $G/train-*.log 2>/dev/null || true; } > $OUT/progress.txt
