@@ -78,3 +78,24 @@ def test_inconsistent_configs_are_refused(data, message):
         base.setdefault(section, {}).update(values)
     with pytest.raises(UserError, match=message.replace("(", r"\(").replace(")", r"\)")):
         TrainConfig.from_dict(base).validate()
+
+
+def test_the_next_lease_config_fits_the_grown_shipped_model_and_speeds_exactly_the_added_blocks():
+    """configs/tiny-gpu-continue-stage128-enc10.yaml trains the shipped weights grown to ten encoder blocks by
+    tools/deepen_checkpoint.py: its model is the grown one, and its ten-times rate reaches the added blocks (those with
+    zeroed output projections) and nothing else."""
+    from fnmatch import fnmatch
+
+    from d4rt.model import D4RT
+    from d4rt.model.grow import deepen
+
+    config = TrainConfig.load(CONFIGS / "tiny-gpu-continue-stage128-enc10.yaml")
+    grown = deepen(D4RT.from_pretrained(), encoder_depth=10, seed=128)
+    assert config.validate() == grown.config
+    added = {i for i, block in enumerate(grown.encoder.blocks)
+             if not block.attn.proj.weight.any() and not block.mlp.fc2.weight.any()}
+    assert added == {2, 3, 6, 7}
+    faster = {name for name, _ in grown.named_parameters()
+              if any(fnmatch(name, pattern) for pattern in config.optim.lr_scale)}
+    assert faster and faster == {name for name, _ in grown.named_parameters()
+                                 if name.startswith("encoder.blocks.") and int(name.split(".")[2]) in added}
