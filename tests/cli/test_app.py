@@ -47,6 +47,7 @@ def zip_names(path: str) -> set[str]:
         return set(z.namelist())
 
 
+@pytest.mark.slow(seconds=41)
 def test_sample_in_every_promised_file_out_and_requests_apart(served, tmp_path):
     app, url = served
     before = set(Path(app.work_root).iterdir())
@@ -88,6 +89,7 @@ def test_a_corrupt_upload_gets_the_clis_one_line_error(served, tmp_path):
         Client(url, verbose=False).predict(handle_file(str(big)), False, 6, 1, FAST, "", api_name="/reconstruct")
 
 
+@pytest.mark.slow(seconds=98)
 @pytest.mark.skipif(CHROMIUM is None, reason="no Chromium on this machine")
 def test_the_result_page_shows_the_3d_view(served):
     sync_playwright = pytest.importorskip("playwright.sync_api").sync_playwright

@@ -77,6 +77,7 @@ def assert_same_outputs(a: Path, b: Path, names) -> None:
         assert (a / name / "trajectory_tum.txt").read_text() == (b / name / "trajectory_tum.txt").read_text()
 
 
+@pytest.mark.slow(seconds=31)
 def test_two_torchrun_processes_write_what_one_process_writes(tmp_path, videos, checkpoint, sequential):
     out = tmp_path / "out"
     launcher = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2", "-m", "d4rt"]
@@ -93,6 +94,7 @@ def test_two_torchrun_processes_write_what_one_process_writes(tmp_path, videos, 
     assert run.stdout.count("wrote ") == NUM_VIDEOS
 
 
+@pytest.mark.slow(seconds=33)
 def test_a_killed_run_resumes_with_only_the_rest(tmp_path, videos, checkpoint, sequential):
     out = tmp_path / "out"
     process = subprocess.Popen(command(videos, "-o", out, "--checkpoint", checkpoint), stdout=subprocess.DEVNULL,

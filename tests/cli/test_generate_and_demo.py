@@ -68,6 +68,7 @@ def printed_errors(stdout: str) -> dict[str, float]:
             for name in ("AbsRel", "ATE", "focal length error", "APD3D", "L1")}
 
 
+@pytest.mark.slow(seconds=265)
 def test_demo_runs_with_no_arguments(tmp_path):
     """With the bundled model (MODEL_CARD.md) the demo reconstructs both samples, writes every output,
     prints the synthetic clip's errors, and the real frames' focal length: the model card's figure."""

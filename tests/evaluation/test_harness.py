@@ -117,6 +117,7 @@ def test_cli_eval_with_a_checkpoint(tmp_path, tiny_checkpoint, capsys):
         assert image.size[0] > 1000
 
 
+@pytest.mark.slow(seconds=40)
 def test_a_stopped_eval_resumes_to_the_same_json(tmp_path, tiny_checkpoint, monkeypatch, capsys):
     """Rows are kept as they finish; --resume reuses them (without predicting again) and writes the same JSON."""
     from d4rt.evaluation import harness

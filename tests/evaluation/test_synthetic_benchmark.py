@@ -74,7 +74,7 @@ def assert_perfect(metrics):
     assert metrics["pc_l1"] < 1e-5
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=160)
 @pytest.mark.parametrize("half", [0, 1])
 def test_oracle_scores_perfectly(half):
     """All 48 clips (two halves, so two test workers share the minute of work)."""

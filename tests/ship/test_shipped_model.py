@@ -87,7 +87,7 @@ def test_subset_figures_are_the_model_cards():
     assert_same_figures(expected, {name: card[name] for name in expected})
 
 
-@pytest.mark.slow
+@pytest.mark.slow(seconds=224)
 def test_shipped_model_reproduces_its_figures_on_a_subset(tmp_path):
     out = tmp_path / "subset.json"
     env = {**os.environ, "PYTHONPATH": str(Path(d4rt.__file__).parents[1])}
@@ -124,6 +124,7 @@ def test_derived_and_direct_point_clouds_of_the_model_agree_within_tolerance(roo
     assert np.median(np.linalg.norm(derived.points - direct.points, axis=1)) < 0.5 * radius
 
 
+@pytest.mark.slow(seconds=100)
 def test_bf16_answers_stay_within_stated_tolerance_of_fp32():
     """d4rt reconstruct's default on an AMX / AVX512-BF16 CPU is bf16 autocast: on a synthetic clip with the
     shipped model its depth and cameras stay within the tolerance docs/performance.md states of the
@@ -135,7 +136,9 @@ def test_bf16_answers_stay_within_stated_tolerance_of_fp32():
     1.5e-3 there; stage 118's soup 2.2e-3, 1.0e-3, 1.9e-3 there), with the same camera ATE against the truth (within
     5%; stage 101's 0.142 and 0.140, stage 103's 0.272 and 0.264, the average's 0.058 and 0.058, the soup's 0.111 and
     0.112, stage 118's 0.262 and 0.263); tracks, whose window hand-off thresholds visibility, 5e-2 (measured 1.4e-3,
-    3.2e-3, 1.4e-3 and 2.0e-3)."""
+    3.2e-3, 1.4e-3 and 2.0e-3). Stage 118's soup with depth at the quarter grid below, emulated bf16 on a 2-core AVX2
+    AMD EPYC (2026-12-05): depth 2.1e-3, confidence 1.1e-3, cameras 2.2e-3, tracks 2.7e-3, ATE 0.262 and 0.264,
+    AbsRel 0.426 and 0.425 (222 s at 64x80 there, about 100 s at 32x40)."""
     import torch
 
     from d4rt.evaluation.metrics import pose_metrics
@@ -144,10 +147,15 @@ def test_bf16_answers_stay_within_stated_tolerance_of_fp32():
 
     clip = render_clip(2, 30, 64, 80, environment="room", camera_motion="orbit", num_objects=4)
     model = D4RT.from_pretrained()
+    # Depth at a quarter of the pixels: each query is answered on its own, so a quarter of them reads the same
+    # per-answer difference at a quarter of the cost (emulated bf16 on an AVX2-only CPU is several times slower
+    # than float32). The figures above were measured at 64x80; the truth is the oracle's at the same queries.
+    size = (32, 40)
+    true_depth = Reconstruction.from_clip(clip).depth(resolution=size).depth
 
     def answers():
         rec = Reconstruction.from_model(model, clip.rgb, progress=False)  # 2 windows of 24 frames
-        depth = rec.depth()
+        depth = rec.depth(resolution=size)
         tracks = rec.tracks([[0, 20, 20], [29, 60, 40], [12, 40, 30]], frame="world")
         return {"depth": depth.depth, "confidence": depth.confidence, "cam_to_world": rec.cameras().cam_to_world,
                 "tracks": tracks.points}
@@ -167,7 +175,7 @@ def test_bf16_answers_stay_within_stated_tolerance_of_fp32():
     assert relative("tracks") < 5e-2
 
     def abs_rel(depth):  # one scale for the clip, as d4rt eval's median alignment
-        scale = np.median(clip.depth) / np.median(depth)
-        return float(np.mean(np.abs(scale * depth - clip.depth) / clip.depth))
+        scale = np.median(true_depth) / np.median(depth)
+        return float(np.mean(np.abs(scale * depth - true_depth) / true_depth))
 
     assert abs(abs_rel(bf16["depth"]) - abs_rel(fp32["depth"])) < 0.01 * abs_rel(fp32["depth"])

@@ -28,6 +28,7 @@ def quick_result(tmp_path_factory):
     return json.loads(path.read_text()), done.stdout
 
 
+@pytest.mark.slow(seconds=47)
 def test_quick_run_writes_every_field_with_sane_values(quick_result):
     result, stdout = quick_result
     for key in REQUIRED:

@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from d4rt.model import D4RT
 from training_helpers import REPO, fast_config, run_d4rt, write_config
 
 TINY = str(REPO / "configs" / "tiny-cpu.yaml")
 
 
+@pytest.mark.slow(seconds=58)
 def test_tiny_cpu_config_trains_writes_safetensors_logs_and_resumes(tmp_path):
     out = tmp_path / "run"
     done = run_d4rt("train", "--config", TINY, "--out", str(out), "--max-steps", "2")
@@ -52,6 +55,7 @@ def test_resume_with_a_changed_recipe_is_refused(tmp_path, clip_dir):
     assert changed.returncode == 2 and "optim.lr" in changed.stderr
 
 
+@pytest.mark.slow(seconds=29)
 def test_bad_configs_and_arguments_fail_in_one_line(tmp_path, clip_dir):
     cases = [
         (fast_config(clip_dir, optim={"lr": 1e-3, "lrr": 1.0}), "lrr"),

@@ -65,6 +65,7 @@ def test_two_processes_train_to_identical_parameters(strategy, tmp_path, clip_di
     assert moved > 0 or strategy == "ddp"  # sanity: the comparison looks at trained, non-trivial weights
 
 
+@pytest.mark.slow(seconds=66)
 @pytest.mark.parametrize("strategy", ["ddp", "fsdp"])
 def test_resume_under_torchrun_restores_sharded_state_exactly(strategy, tmp_path, clip_dir):
     def config(steps: int) -> Path:

@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 
+import pytest
 import yaml
 from subprocess_budget import budget
 from training_helpers import REPO, fast_config, subprocess_env, write_config
@@ -20,6 +21,7 @@ def run_driver(config, out, *arms: list[str]) -> subprocess.CompletedProcess:
     return subprocess.run(command, capture_output=True, text=True, env=subprocess_env(), timeout=budget(600))
 
 
+@pytest.mark.slow(seconds=60)
 def test_two_arms_at_equal_time(clip_dir, tmp_path):
     config = write_config(tmp_path / "config.yaml", fast_config(clip_dir, run={"grad_accum": 2, "max_steps": 5}))
     out = tmp_path / "runs"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 
+import pytest
 import torch
 
 from d4rt.data import ClipQueryDataset
@@ -21,6 +22,7 @@ def l3d(model: D4RT, batch: dict) -> float:
     return d4rt_loss(out, batch)[1]["3d"].item()
 
 
+@pytest.mark.slow(seconds=83)
 def test_tiny_preset_overfits_one_clip(tmp_path):
     clip_dir = tmp_path / "clip"
     render_clip(7, 4, 32, 32, camera_motion="orbit", num_objects=2).save(clip_dir / "clip.npz")

@@ -41,6 +41,7 @@ def start_run_and_wait_for_steps(config: Path, out: Path, steps: int, new_sessio
     return process
 
 
+@pytest.mark.slow(seconds=28)
 def test_sigkill_mid_run_then_resume_is_bitwise_equal_to_an_uninterrupted_run(tmp_path, clip_dir):
     config = write_config(tmp_path / "run.yaml", fast_config(clip_dir, run={"max_steps": 12, "checkpoint_every": 2,
                                                                            "log_every": 1}))
