@@ -18,6 +18,12 @@ for choosing between weights without looking at the benchmark. ``--gate-seed N``
 definitions with seeds N + index instead, under the key ``synthetic-gate-N``: a judge's gate set, drawn for one
 judgment and never measured before (docs/training.md, "Gate sets drawn per judgment").
 
+``--camera single`` and ``--square-pixels`` measure the other intrinsics recipes of ``Reconstruction.cameras`` (one
+camera fitted to every frame's points; fx = fy fitted together) instead of the paper's per-frame one; the JSON says
+which under ``recipe``. ``--render-pixels N`` renders each synthetic clip at about N pixels per frame, its aspect
+ratio kept (e.g. 6400, the training's ``render_pixels``), instead of the benchmark's size. (On the shipped weights
+none of the three moves the focal error: docs/training.md, "Focal error by frame size".)
+
 Writes JSON (every number the model card quotes about focal lengths) and prints a summary.
 """
 
@@ -25,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -47,11 +54,21 @@ def gate_key(seed_base: int) -> str:
     return f"synthetic-gate-{seed_base}"
 
 
+def at_pixels(spec, pixels: float | None):
+    """``spec`` with its frame size scaled to about ``pixels`` per frame, aspect ratio kept (None: unchanged)."""
+    if pixels is None:
+        return spec
+    scale = math.sqrt(pixels / (spec.height * spec.width))
+    return replace(spec, height=max(8, round(spec.height * scale)), width=max(8, round(spec.width * scale)))
+
+
 def synthetic_focal_errors(model: D4RT, limit: int | None, held_out: bool = False,
-                           seed_base: int | None = None) -> dict:
+                           seed_base: int | None = None, recipe: dict | None = None,
+                           render_pixels: float | None = None) -> dict:
     """Per-clip median relative fx error on synthetic-dynamic-v1 (``held_out``: its clip definitions drawn from
     unused seeds; ``seed_base``: a gate set, drawn from seeds ``seed_base`` + index), and its median / mean over
-    clips."""
+    clips. recipe: keyword arguments of ``Reconstruction.cameras`` (None: the paper's per-frame median);
+    render_pixels: see :func:`at_pixels`."""
     if held_out and seed_base is not None:
         raise ValueError("held_out and seed_base name two different clip sets; pass one")
     if seed_base is not None:
@@ -62,9 +79,9 @@ def synthetic_focal_errors(model: D4RT, limit: int | None, held_out: bool = Fals
         specs = clip_specs()[:limit]
     label = HELD_OUT if held_out else gate_key(seed_base) if seed_base is not None else BENCHMARK
     clips = []
-    for spec in tqdm(specs, desc=f"focal {label}", unit="clip"):
+    for spec in tqdm([at_pixels(s, render_pixels) for s in specs], desc=f"focal {label}", unit="clip"):
         sequence = spec.render()
-        estimated = model.reconstruct(sequence.rgb).cameras().intrinsics[:, 0, 0]
+        estimated = model.reconstruct(sequence.rgb).cameras(**(recipe or {})).intrinsics[:, 0, 0]
         true = sequence.intrinsics[:, 0, 0]
         errors = np.abs(estimated / true - 1.0)
         clips.append({"name": spec.name, "size": [spec.height, spec.width],
@@ -74,10 +91,11 @@ def synthetic_focal_errors(model: D4RT, limit: int | None, held_out: bool = Fals
     return {"clips": clips, "median_focal_error": float(np.median(errors)), "mean_focal_error": float(np.mean(errors))}
 
 
-def tum_focal(model: D4RT) -> dict:
-    """The median estimated fx over the bundled TUM frames, against the published calibration."""
+def tum_focal(model: D4RT, recipe: dict | None = None) -> dict:
+    """The median estimated fx over the bundled TUM frames, against the published calibration (recipe: as for
+    :func:`synthetic_focal_errors`)."""
     frames = load_frames(tum_frames_dir())
-    fx = float(np.median(model.reconstruct(frames.rgb).cameras().intrinsics[:, 0, 0]))
+    fx = float(np.median(model.reconstruct(frames.rgb).cameras(**(recipe or {})).intrinsics[:, 0, 0]))
     return {"frames": len(frames.rgb), "size": list(frames.rgb.shape[1:3]), "estimated_fx": fx,
             "published_fx": TUM_FX, "relative_error": fx / TUM_FX - 1.0}
 
@@ -91,17 +109,25 @@ def main() -> None:
                         help="the benchmark's clip definitions from seeds it never uses, instead of its clips")
     parser.add_argument("--gate-seed", type=int, default=None, metavar="N",
                         help="the benchmark's clip definitions from seeds N + index (a judge's gate set)")
+    parser.add_argument("--camera", choices=("per-frame", "single"), default="per-frame",
+                        help="fit each frame's intrinsics (the paper's recipe) or one camera to all frames")
+    parser.add_argument("--square-pixels", action="store_true", help="fit one focal length to x and y (fx = fy)")
+    parser.add_argument("--render-pixels", type=float, default=None, metavar="N",
+                        help="render the synthetic clips at about N pixels per frame, aspect kept (default: their size)")
     args = parser.parse_args()
     if args.gate_seed is not None and args.held_out:
         parser.error("--held-out and --gate-seed name two different clip sets; pass one")
+    if args.render_pixels is not None and args.render_pixels < 64:
+        parser.error(f"--render-pixels must be at least 64, got {args.render_pixels:g}")
     if args.gate_seed is not None and args.gate_seed not in GATE_SEEDS:
         parser.error(f"--gate-seed must lie in {GATE_SEEDS.start:,}-{GATE_SEEDS.stop - 1:,}, got {args.gate_seed:,}")
 
     model = D4RT.from_pretrained(args.checkpoint)
     key = HELD_OUT if args.held_out else gate_key(args.gate_seed) if args.gate_seed is not None else BENCHMARK
-    result = {"checkpoint": args.checkpoint or "bundled",
-              key: synthetic_focal_errors(model, args.limit, args.held_out, args.gate_seed),
-              TUM_FOLDER: tum_focal(model)}
+    recipe = {"camera": args.camera, "square_pixels": args.square_pixels}
+    result = {"checkpoint": args.checkpoint or "bundled", "recipe": recipe, "render_pixels": args.render_pixels,
+              key: synthetic_focal_errors(model, args.limit, args.held_out, args.gate_seed, recipe, args.render_pixels),
+              TUM_FOLDER: tum_focal(model, recipe)}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=1) + "\n")
     synthetic, tum = result[key], result[TUM_FOLDER]

@@ -16,9 +16,9 @@ focal_by_fov = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(focal_by_fov)
 
 
-def clip(fov_degrees: float, ratio: float, width: int = 128) -> dict:
+def clip(fov_degrees: float, ratio: float, width: int = 128, height: int = 96) -> dict:
     true_fx = width / (2 * math.tan(math.radians(fov_degrees / 2)))
-    return {"size": [96, width], "true_fx_median": true_fx, "estimated_fx_median": ratio * true_fx}
+    return {"size": [height, width], "true_fx_median": true_fx, "estimated_fx_median": ratio * true_fx}
 
 
 def test_bands_by_true_fov_and_their_medians():
@@ -34,6 +34,16 @@ def test_bands_by_true_fov_and_their_medians():
     assert focal_by_fov.horizontal_fov_degrees(128, 64) == pytest.approx(90.0)
 
 
+def test_sizes_ordered_portrait_to_landscape_with_their_own_medians():
+    clips = [clip(60, 0.5, 192, 96), clip(60, 0.8, 192, 96), clip(60, 1.1, 128, 128), clip(60, 1.5, 120, 160),
+             clip(40, 2.0, 192, 96)]
+    rows = focal_by_fov.focal_by_size(clips)
+    assert [(r["size"], r["clips"]) for r in rows] == [("160x120", 1), ("128x128", 1), ("96x192", 3)]
+    assert rows[0]["median_log_ratio"] == pytest.approx(math.log(1.5))
+    assert rows[2]["median_log_ratio"] == pytest.approx(math.log(0.8))
+    assert rows[2]["median_focal_error"] == pytest.approx(0.5)  # |0.5 - 1|, |0.8 - 1|, |2.0 - 1| -> 0.5
+
+
 def test_regression_reads_the_share_of_the_focal_signal():
     fovs = [30, 45, 60, 80, 100]
     half = [clip(f, 1.0) for f in fovs]
@@ -42,6 +52,22 @@ def test_regression_reads_the_share_of_the_focal_signal():
     fit = focal_by_fov.focal_regression(half)
     assert fit["slope"] == pytest.approx(0.5) and fit["intercept"] == pytest.approx(0.0, abs=1e-9)
     assert fit["correlation"] == pytest.approx(1.0) and fit["residual_sd"] == pytest.approx(0.0, abs=1e-9)
+    assert fit["aspect_coefficient"] == pytest.approx(0.0, abs=1e-9)  # every clip 96x128: no elongation to fit
+    # A model that reads the view from the shorter side (half its log focal, as above) whatever the aspect: one
+    # law against S, while against the width the elongated frames seem to need an aspect term.
+    shorter = []
+    for height, width in ((128, 128), (96, 192), (120, 160), (192, 108), (108, 192)):
+        for f in fovs:
+            c = clip(f, 1.0, width, height)
+            s = min(height, width)
+            c["estimated_fx_median"] = s * (c["true_fx_median"] / s) ** 0.5
+            shorter.append(c)
+    on_s = focal_by_fov.focal_regression(shorter, "shorter")
+    assert on_s["slope"] == pytest.approx(0.5) and on_s["residual_sd"] == pytest.approx(0.0, abs=1e-9)
+    assert on_s["aspect_coefficient"] == pytest.approx(0.0, abs=1e-9)
+    assert abs(focal_by_fov.focal_regression(shorter, "width")["aspect_coefficient"]) > 0.1
+    with pytest.raises(focal_by_fov.UserError, match="side must be one of"):
+        focal_by_fov.focal_regression(shorter, "diagonal")
     with pytest.raises(focal_by_fov.UserError, match="at least two clips"):
         focal_by_fov.focal_regression([clip(30, 1.0), clip(30, 2.0)])
 
@@ -54,6 +80,7 @@ def test_command_reads_every_synthetic_set_and_refuses_other_json(tmp_path, caps
     focal_by_fov.main([str(good)])
     out = capsys.readouterr().out
     assert "[synthetic-held-out]" in out and "1 clips" in out and "-0.69" in out and "tum" not in out
+    assert "size  96x128:  1 clips, median log(est/true fx) -0.69" in out
     other = tmp_path / "other.json"
     other.write_text(json.dumps({"rows": []}))
     with pytest.raises(SystemExit, match="has no synthetic clips"):

@@ -31,6 +31,16 @@ def test_held_out_focal_is_exact_on_the_oracle_and_drawn_from_unused_seeds():
     report = measure_focal.synthetic_focal_errors(oracle, limit=2, held_out=True)
     assert [c["name"] for c in report["clips"]] == [s.name for s in held_out]
     assert report["median_focal_error"] < 1e-5
+    # The other recipes are exact too on clips that do not zoom (one camera, square pixels, as the engine's).
+    assert not any(s.options.zoom for s in held_out)
+    other = measure_focal.synthetic_focal_errors(oracle, limit=2, held_out=True,
+                                                 recipe={"camera": "single", "square_pixels": True})
+    assert other["median_focal_error"] < 1e-5
+    # Rendered at about the training's pixel count: the same definition, its aspect ratio kept.
+    small = measure_focal.at_pixels(held_out[1], 6400)
+    assert abs(small.height * small.width - 6400) < small.height + small.width
+    assert abs(small.width / small.height - held_out[1].width / held_out[1].height) < 0.03
+    assert measure_focal.at_pixels(held_out[1], None) is held_out[1]
     benchmark_first = clip_specs()[0].render()
     assert not np.array_equal(benchmark_first.rgb, clips[0].rgb)  # another scene of the same definition
     assert report["clips"][0]["size"] == [held_out[0].height, held_out[0].width]
