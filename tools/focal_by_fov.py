@@ -11,9 +11,9 @@ toward about 60 degrees; this shows which band decides the median. It also fits,
 every field of view told apart; 0: one focal for all), and the residual spread is the error left at slope 1; the
 same fit against the frame's shorter side S, each with the coefficient that ``|log(W / H)|`` takes when it joins
 (over 16 draws of 48 clips the shipped weights read -0.05 +- 0.19 against W, +0.29 +- 0.20 against S: the view is
-read across the width, and one draw's term is mostly its spread). Then the
-same two medians per frame size (H x W, portrait to landscape): whether non-square frames are read as wider or
-narrower than square ones (measured 2026-12-05, docs/training.md "Focal error by frame size"). Every
+read across the width, and one draw's term is mostly its spread). Then the same two medians per frame size (H x W,
+portrait to landscape): whether non-square frames are read as wider or narrower than square ones (measured
+2026-12-05, docs/training.md "Focal error by frame size"). Every
 synthetic set in each file is reported (``synthetic-dynamic-v1``, ``synthetic-held-out``); the real TUM frames are
 one camera and are left out.
 """
