@@ -80,16 +80,17 @@ def test_inconsistent_configs_are_refused(data, message):
         TrainConfig.from_dict(base).validate()
 
 
-def test_the_next_lease_config_fits_the_grown_shipped_model_and_speeds_exactly_the_added_blocks():
-    """configs/tiny-gpu-continue-stage128-enc10.yaml trains the shipped weights grown to ten encoder blocks by
-    tools/deepen_checkpoint.py: its model is the grown one, and its ten-times rate reaches the added blocks (those with
-    zeroed output projections) and nothing else."""
+@pytest.mark.parametrize("name", ["tiny-gpu-continue-stage128-enc10", "ship-tiny-cpu-stage129-enc10"])
+def test_the_grown_model_configs_fit_the_grown_shipped_model_and_speed_exactly_the_added_blocks(name):
+    """Stage 128's lease and stage 129's CPU run train the shipped weights grown to ten encoder blocks by
+    tools/deepen_checkpoint.py: each config's model is the grown one, and its ten-times rate reaches the added blocks
+    (those with zeroed output projections) and nothing else."""
     from fnmatch import fnmatch
 
     from d4rt.model import D4RT
     from d4rt.model.grow import deepen
 
-    config = TrainConfig.load(CONFIGS / "tiny-gpu-continue-stage128-enc10.yaml")
+    config = TrainConfig.load(CONFIGS / f"{name}.yaml")
     grown = deepen(D4RT.from_pretrained(), encoder_depth=10, seed=128)
     assert config.validate() == grown.config
     added = {i for i, block in enumerate(grown.encoder.blocks)
