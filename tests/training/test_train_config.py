@@ -80,9 +80,10 @@ def test_inconsistent_configs_are_refused(data, message):
         TrainConfig.from_dict(base).validate()
 
 
-@pytest.mark.parametrize("name", ["tiny-gpu-continue-stage128-enc10", "ship-tiny-cpu-stage129-enc10"])
+@pytest.mark.parametrize("name", ["tiny-gpu-continue-stage128-enc10", "ship-tiny-cpu-stage129-enc10",
+                                  "ship-tiny-cpu-stage130-enc10-sibling"])
 def test_the_grown_model_configs_fit_the_grown_shipped_model_and_speed_exactly_the_added_blocks(name):
-    """Stage 128's lease and stage 129's CPU run train the shipped weights grown to ten encoder blocks by
+    """Stage 128's lease and stages 129-130's CPU runs train the shipped weights grown to ten encoder blocks by
     tools/deepen_checkpoint.py: each config's model is the grown one, and its ten-times rate reaches the added blocks
     (those with zeroed output projections) and nothing else."""
     from fnmatch import fnmatch
