@@ -647,3 +647,48 @@ def test_camera_pair_rotation_term_reads_the_rotation_between_a_pairs_answers_no
         d4rt_loss(pred, {k: v for k, v in batch.items() if k != "twin"}, config)
     with pytest.raises(UserError, match="weight_camera_pair_rotation must be a number >= 0"):
         LossConfig(weight_camera_pair_rotation=-1.0).validate()
+
+
+def test_body_relative_depth_term_prices_the_depth_ratio_across_bodies_in_one_frame_only():
+    """The mean |log(z_i / z_j) - log(z*_i / z*_j)| over the in-view pairs of one frame on different bodies: pairs
+    within one body, across frames, asked in another frame's camera or outside the image stay out; any scale of the
+    prediction costs nothing; a frame read uniformly nearer costs nothing, a body read nearer than its background
+    does."""
+    z_true = torch.tensor([2.0, 10.0, 12.0, 3.0, 20.0, 5.0, 4.0, 6.0])
+    z_pred = torch.tensor([1.0, 10.0, 12.0, 3.0, 20.0, 1.0, 1.0, 1.0])
+    #                      body 1 vs env 0 (frame 0) | frame 1: body 2, env | out: t_cam != t_tgt, outside, frame 2
+    times = torch.tensor([[0, 0, 0], [1, 0, 0], [2, 0, 0], [1, 1, 1], [0, 1, 1], [0, 0, 1], [0, 0, 0],
+                          [2, 2, 2]]).float()
+    n = len(z_true)
+    batch = on_axis_batch(z_true, times)
+    batch["uv"] = torch.full((1, n, 2), 0.5)
+    batch["uv"][0, 6] = torch.tensor([0.5, -0.1])  # in front of camera 0 but outside its image
+    batch["object_id"] = torch.tensor([[1, 0, 0, 2, 0, 1, 1, 0]])
+    pred = perfect(batch) | {"points": torch.stack([torch.zeros(n), torch.zeros(n), z_pred], -1)[None]}
+    pred["points"].requires_grad_()
+    # Frame 0: query 0 (body 1) against 1 and 2 (environment); frame 1: query 3 (body 2) against 4. Query 0 is read
+    # at half its depth against its background: each of its pairs costs log 2; frame 1 is exact.
+    expected = (2 * LOG2 + 0.0) / 3
+    config = LossConfig(weight_body_relative_depth=0.5)
+    total, terms = d4rt_loss(pred, batch, config)
+    assert terms["body_relative_depth"].item() == pytest.approx(expected, rel=1e-5)
+    without, off_terms = d4rt_loss(pred, batch, LossConfig())
+    assert "body_relative_depth" not in off_terms
+    assert (total - without).item() == pytest.approx(0.5 * expected, rel=1e-4)
+    total.backward()
+    grad = pred["points"].grad[0, :, 2]
+    assert torch.isfinite(grad).all() and grad[0] < 0 and grad[1:3].sum() > 0  # body pushed back, background nearer
+    for scale in (1e-3, 7.0, 1e4):
+        scaled = perfect(batch) | {"points": pred["points"].detach() * scale}
+        assert d4rt_loss(scaled, batch, config)[1]["body_relative_depth"].item() == pytest.approx(expected, rel=1e-4)
+    nearer = z_true.clone()
+    nearer[:3] = nearer[:3] / 3  # all of frame 0 read three times nearer: every ratio in it kept
+    uniform = perfect(batch) | {"points": torch.stack([torch.zeros(n), torch.zeros(n), nearer], -1)[None]}
+    assert d4rt_loss(uniform, batch, config)[1]["body_relative_depth"].item() == pytest.approx(0.0, abs=1e-6)
+    one_body = batch | {"object_id": torch.zeros(1, n, dtype=torch.long)}
+    lone = d4rt_loss(pred, one_body, config)[1]["body_relative_depth"]
+    assert lone.item() == 0.0
+    with pytest.raises(UserError, match="weight_body_relative_depth needs batches with object_id"):
+        d4rt_loss(pred, {k: v for k, v in batch.items() if k != "object_id"}, config)
+    with pytest.raises(UserError, match="weight_body_relative_depth must be a number >= 0"):
+        LossConfig(weight_body_relative_depth=-1.0).validate()

@@ -105,7 +105,9 @@ def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampl
     in the view's coordinates, targets ``points (N,3)``, ``uv (N,2)``, ``visibility (N,)``,
     ``motion (N,3)``, ``normals (N,3)`` (zeros where undefined), masks ``valid (N,)`` and
     ``uv_valid (N,)`` (bool), ``aspect_ratio ()`` (the crop's width / height in source pixels), the
-    view's ``intrinsics (T,3,3)`` and ``cam_to_world (T,4,4)`` (float32), and ``depth (T,H,W) float32``, the
+    view's ``intrinsics (T,3,3)`` and ``cam_to_world (T,4,4)`` (float32), ``object_id (N,) int64``, the rigid body
+    each query's point lies on (0 = the static environment; for ``loss.weight_body_relative_depth``), and
+    ``depth (T,H,W) float32``, the
     true z-depth of every sample pixel (0 where unknown; for ``loss.weight_dense_depth``). With ``patch_frames``
     also ``patch_video (T, h_crop, w_crop, 3) uint8``, the view's crop at the clip's own resolution, augmented
     alike, and ``patch_size (2,)`` long = (h_crop, w_crop): what a model with ``rgb_patch_source="original"`` cuts
@@ -133,6 +135,7 @@ def make_training_sample(clip: Clip, view: View, rng: np.random.Generator, sampl
         queries=torch.from_numpy(drawn["queries"]).float(),
         valid=valid,
         uv_valid=uv_valid,
+        object_id=answers["object_id"].long(),
         aspect_ratio=torch.tensor(w / h, dtype=torch.float32),
         intrinsics=torch.from_numpy(view.intrinsics(clip.intrinsics)).float(),
         cam_to_world=torch.from_numpy(clip.cam_to_world[frames]).float(),

@@ -112,6 +112,16 @@ Choices the paper leaves open (documented in docs/training.md, configurable in :
   most. Not every query: a point outside camera t_cam's view can lie just in front of its image plane, where the
   division by its true z blows the error up (the term over all in-front queries ran twice the depth queries' on the
   same batches, measured before stage 114).
+- *Body-relative depth* (not in paper; ``weight_body_relative_depth`` > 0, batches with ``object_id``): over each
+  pair of queries of one clip seen in the same frame (both with t_tgt = t_cam, in front of that camera and inside its
+  image, the in-view queries of the aligned-depth term) whose points lie on different rigid bodies (the static
+  environment is body 0), the error of the log depth ratio: ``|log(z_i / z_j) - log(z*_i / z*_j)|``, averaged over
+  the pairs. Why: stages 132-133 weighed near bodies more (more queries on them, the aligned-depth term's AbsRel) and
+  the model read whole frames nearer instead of telling a near body from the background behind it: the worst clips
+  gained, delta<1.25 lost on nearly every clip and the far/near error rose (docs/training.md). A ratio between two
+  things in one frame is free of any scale, so the term prices only where a body stands against its background and
+  leaves the far range (pairs within the environment) to the other terms. A prediction below ``_MIN_LOG_DEPTH`` of
+  its clip's mean depth (or behind the camera) gets no gradient from it.
 - *Dense depth* (not in paper; ``weight_dense_depth`` > 0, only for a model with ``dense_depth_head``): the
   head's log-depth of every input pixel against the log of the batch's ``depth`` maps, over the pixels with
   a true depth, each clip's errors centred on their clip mean before the L1: ``|e - mean_clip(e)|`` with
@@ -198,6 +208,8 @@ class LossConfig:
     weight_log_depth: (not in paper) weight of the scale-invariant log-depth term (module docstring); 0 = off.
     weight_aligned_depth: (not in paper) weight of the aligned-depth (AbsRel) term on the depth queries (module
         docstring); 0 = off.
+    weight_body_relative_depth: (not in paper) weight of the body-relative depth term (module docstring); 0 = off.
+        Needs batches with ``object_id`` (rendered clips; not per-point track datasets).
     aligned_depth_alignment: (not in paper) the alignment that term fits per clip: "scale&shift" (the video-depth
         protocol's, as the benchmark) or "scale" (the L1-optimal scale alone, so the answers are priced as
         proportional to the truth rather than merely affine to it; it cost the 3D points more, stage 96).
@@ -232,6 +244,7 @@ class LossConfig:
     weight_camera_pair_rotation: float = 0.0
     weight_log_depth: float = 0.0
     weight_aligned_depth: float = 0.0
+    weight_body_relative_depth: float = 0.0
     aligned_depth_alignment: str = "scale&shift"
     aligned_depth_queries: str = "depth"
     weight_ray_angle: float = 0.0
@@ -249,7 +262,7 @@ class LossConfig:
         optional = ("weight_pose_translation",) if self.weight_pose_translation is not None else ()
         for name in ("weight_3d", "weight_confidence", "weight_2d", "weight_visibility", "weight_motion",
                      "weight_normal", "weight_pose", "weight_camera_pair", "weight_camera_pair_direction",
-                     "weight_camera_pair_rotation", "weight_log_depth", "weight_aligned_depth",
+                     "weight_camera_pair_rotation", "weight_log_depth", "weight_aligned_depth", "weight_body_relative_depth",
                      "weight_ray_angle", "weight_dense_depth", "weight_correspondence", *optional):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or value < 0:
@@ -335,14 +348,13 @@ def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.
     model's depth scale 10-20 times in 600 steps (stage 93's first arm) and grew every scale-invariant term's
     gradient as much; divided by its own mean the term is exactly invariant to the prediction's scale.
     """
-    times = queries[..., 2:5]
-    used = mask & (target[..., 2] > 0) & (times[..., 1] == times[..., 2])
     if which == "depth":
-        used = used & (times[..., 0] == times[..., 1])
+        times = queries[..., 2:5]
+        used = mask & (target[..., 2] > 0) & (times[..., 0] == times[..., 1]) & (times[..., 1] == times[..., 2])
     else:
         if target_uv is None:
             raise ValueError("aligned_depth_loss with which='in_view' needs target_uv (the batch's uv)")
-        used = used & ((target_uv >= 0) & (target_uv <= 1)).all(-1)
+        used = in_view_queries(target, queries, mask, target_uv)
     pred_z, target_z = pred[..., 2] / mean_depth(pred, mask)[:, None], target[..., 2]
     scale, shift = torch.zeros(pred.shape[0], dtype=pred.dtype), torch.zeros(pred.shape[0], dtype=pred.dtype)
     for b in range(pred.shape[0]):
@@ -356,6 +368,37 @@ def aligned_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.
     safe_target = torch.where(used, target_z, torch.ones_like(target_z))
     error = (scale[:, None] * pred_z + shift[:, None] - safe_target).abs() / safe_target
     return error, used
+
+
+def in_view_queries(target: torch.Tensor, queries: torch.Tensor, mask: torch.Tensor, target_uv: torch.Tensor
+                    ) -> torch.Tensor:
+    """The queries seen in their own frame: t_tgt = t_cam, the target in front of that camera and inside its image.
+
+    target: (B, N, 3) in each query's camera t_cam; queries: (B, N, 5); mask: (B, N) bool (queries with a true point);
+    target_uv: (B, N, 2), the true (u, v) in frame t_tgt. Returns (B, N) bool.
+    """
+    times = queries[..., 2:5]
+    return (mask & (target[..., 2] > 0) & (times[..., 1] == times[..., 2])
+            & ((target_uv >= 0) & (target_uv <= 1)).all(-1))
+
+
+def body_relative_depth_loss(pred: torch.Tensor, target: torch.Tensor, queries: torch.Tensor, mask: torch.Tensor,
+                             target_uv: torch.Tensor, object_id: torch.Tensor) -> torch.Tensor:
+    """The body-relative depth term (module docstring): the mean log-ratio error over the pairs of in-view queries
+    (:func:`in_view_queries`) of one clip and one frame whose points lie on different bodies.
+
+    pred, target: (B, N, 3) in each query's camera t_cam; queries: (B, N, 5); mask: (B, N) bool; target_uv: (B, N, 2);
+    object_id: (B, N) long. Returns a scalar: 0 (still attached to the graph) when no such pair exists.
+    """
+    used = in_view_queries(target, queries, mask, target_uv)
+    pred_z = (pred[..., 2] / mean_depth(pred, mask)[:, None]).clamp_min(_MIN_LOG_DEPTH)
+    safe_target = torch.where(used, target[..., 2], torch.ones_like(target[..., 2]))
+    error = torch.log(pred_z) - torch.log(safe_target)  # (B, N): the log ratio's error is error_i - error_j
+    frame = queries[..., 4]
+    pairs = (used[:, :, None] & used[:, None, :] & (frame[:, :, None] == frame[:, None, :])
+             & (object_id[:, :, None] != object_id[:, None, :]))  # (B, N, N), each pair twice
+    differences = (error[:, :, None] - error[:, None, :]).abs()
+    return torch.where(pairs, differences, torch.zeros_like(differences)).sum() / pairs.sum().clamp_min(1)
 
 
 def dense_depth_loss(pred_log_depth: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
@@ -472,7 +515,7 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
         ``motion``, ``normal``, plus ``confidence_mean`` (mean c) and ``valid_fraction``, ``uv_fraction``;
         with their weights > 0 also ``pose_rotation``, ``pose_translation``, ``camera_pair``,
         ``camera_pair_direction``, ``camera_pair_rotation``, ``log_depth``,
-        ``aligned_depth``, ``ray_angle``, ``dense_depth`` and ``correspondence``.
+        ``aligned_depth``, ``body_relative_depth``, ``ray_angle``, ``dense_depth`` and ``correspondence``.
     """
     config = config or LossConfig()
     if config.weight_correspondence > 0 and "attention_log_probs" not in pred:
@@ -547,6 +590,13 @@ def d4rt_loss(pred: dict[str, torch.Tensor], batch: dict[str, torch.Tensor],
                                                     batch["uv"])
         optional_terms["aligned_depth"] = masked_mean(aligned_depth, used)
         total = total + config.weight_aligned_depth * optional_terms["aligned_depth"]
+    if config.weight_body_relative_depth > 0:
+        if "object_id" not in batch:
+            raise UserError("loss weight_body_relative_depth needs batches with object_id (rendered clips; per-point "
+                            "track datasets do not know which body a point lies on)")
+        optional_terms["body_relative_depth"] = body_relative_depth_loss(
+            p["points"], target_points, batch["queries"], valid, batch["uv"].float(), batch["object_id"])
+        total = total + config.weight_body_relative_depth * optional_terms["body_relative_depth"]
     if config.weight_ray_angle > 0:
         ray_angle, defined = ray_angle_loss(p["points"], target_points, valid, config.ray_angle_spread)
         optional_terms["ray_angle"] = masked_mean(ray_angle, defined)
