@@ -125,6 +125,9 @@ def test_training_sample_targets_are_exact_through_crop_zoom_and_stride(room_cli
         ref = child.oracle.query(q)
         assert torch.allclose(sample["points"], ref["points"].float(), atol=1e-5)
         assert torch.allclose(sample["visibility"], ref["visibility"].float())
+        # The body each query's point lies on (loss.weight_body_relative_depth): the source pixel's object id.
+        assert sample["object_id"].dtype == torch.int64 and torch.equal(sample["object_id"], ref["object_id"].long())
+        assert (sample["object_id"] > 0).any() and (sample["object_id"] == 0).any()
         ok = ref["uv_valid"]
         assert torch.allclose(sample["uv"][ok], ref["uv"][ok].float(), atol=1e-5)
         # Targets at t_tgt = t_cam project through the sample's intrinsics onto the sample's uv.
