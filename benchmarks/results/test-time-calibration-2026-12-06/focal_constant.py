@@ -29,7 +29,12 @@ print("as estimated: held-out", errors(ht, he), "| benchmark", errors(bt, be))
 k = float(np.exp(np.median(np.log(ht / he))))
 print(f"constant k = {k:.4f} (median held-out log ratio): held-out", errors(ht, k * he), "| benchmark", errors(bt, k * be))
 b, a = np.polyfit(np.log(he / hw), np.log(ht / hw), 1)  # the least-squares map from estimate to truth, per width
-fit = lambda e, w: np.exp(a + b * np.log(e / w)) * w  # noqa: E731
+
+
+def fit(e, w):
+    return np.exp(a + b * np.log(e / w)) * w
+
+
 print(f"log-linear log(f/W) = {a:.3f} + {b:.3f} log(f_est/W): held-out", errors(ht, fit(he, hw)),
       "| benchmark", errors(bt, fit(be, bw)))
 print(f"log-log slope of estimate on truth (held-out): {np.polyfit(np.log(ht / hw), np.log(he / hw), 1)[0]:.3f}")
