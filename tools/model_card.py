@@ -7,7 +7,8 @@ Sources (docs/model-card/, each written by the command named in MODEL_CARD.md):
 
 - ``training-stage<N>.json`` (tools/training_summary.py): steps, clips, times, hardware of each training
   stage of the shipped weights' lineage, numbered as in configs/ship-tiny-cpu-stage<N>.yaml (a stage starts
-  from the previous file's weights unless its summary names where it started);
+  from the previous file's weights unless its summary names where it started); sibling legs of one stage, trained
+  side by side by one config with different seeds, as ``training-stage<N>a.json``, ``training-stage<N>b.json``;
 - ``eval-synthetic-dynamic-v1.json`` (``d4rt eval --benchmark synthetic-dynamic-v1``): the model beside
   the oracle and constant-depth baselines, aggregate and per clip; ``eval-synthetic-dynamic-v1-colmap.json``
   the pycolmap baseline alone (``--baseline colmap`` without a checkpoint: it does not depend on the
@@ -66,11 +67,26 @@ METHOD_NAMES = {"d4rt": "**d4rt-tiny (this model)**", "oracle": "oracle (exact g
 def load_sources(directory: Path = SOURCES) -> dict:
     sources = {name: json.loads((directory / f"{name}.json").read_text()) for name in (f"eval-{BENCHMARK}", "focal")}
     with_reference_methods(sources[f"eval-{BENCHMARK}"], directory)
-    numbered = {int(p.stem.removeprefix("training-stage")): p for p in directory.glob("training-stage*.json")}
-    sources["training"] = {number: json.loads(numbered[number].read_text()) for number in sorted(numbered)}
+    numbered = {stage_label(p.stem.removeprefix("training-stage")): p for p in directory.glob("training-stage*.json")}
+    sources["training"] = {number: json.loads(numbered[number].read_text())
+                           for number in sorted(numbered, key=lambda label: stage_order(str(label)))}
     shipped = directory / "shipped-weights.json"
     sources["shipped"] = json.loads(shipped.read_text()) if shipped.is_file() else None
     return sources
+
+
+def stage_order(label: str) -> tuple[int, str]:
+    """``"141a"`` -> ``(141, "a")``: stages in training order, a stage's sibling legs by their letter."""
+    match = re.fullmatch(r"(\d+)([a-z]?)", label)
+    if match is None:
+        raise ValueError(f"training-stage{label}.json: expected a stage number with an optional leg letter, e.g. 141a")
+    return int(match[1]), match[2]
+
+
+def stage_label(label: str) -> int | str:
+    """A stage's key: its number (as configs and shipped-weights.json name it), or ``"141a"`` for a sibling leg."""
+    number, leg = stage_order(label)
+    return f"{number}{leg}" if leg else number
 
 
 def with_reference_methods(evaluation: dict, directory: Path = SOURCES) -> dict:
@@ -93,8 +109,8 @@ def table(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
 
 
-def training_section(stages: dict[int, dict], shipped: dict | None = None) -> str:
-    """``stages``: stage number -> its training summary, in training order."""
+def training_section(stages: dict[int | str, dict], shipped: dict | None = None) -> str:
+    """``stages``: stage number (``"141a"`` for a sibling leg) -> its training summary, in training order."""
     numbers = list(stages)
     last = stages[numbers[-1]]  # the shipped model's architecture (a later stage may add a head)
     rows = [["model", f"`{last['preset']}` preset, {last['parameters'] / 1e6:.2f}M parameters, "
@@ -123,7 +139,7 @@ def training_section(stages: dict[int, dict], shipped: dict | None = None) -> st
 def average_text(average: dict) -> str:
     """``0.5 x stage 2 + 0.5 x stage 4`` for ``{"stages", "weights"[, "steps"]}``; an entry of ``stages`` may
     itself be such an average (an average of averages, shown in brackets)."""
-    steps = {int(stage): step for stage, step in average.get("steps", {}).items()}
+    steps = {stage_label(str(stage)): step for stage, step in average.get("steps", {}).items()}
     return " + ".join(f"{w:g} x " + (f"({average_text(s)})" if isinstance(s, dict) else
                                      f"stage {s}" + (f" (its step {steps[s]:,})" if s in steps else ""))
                       for s, w in zip(average["stages"], average["weights"]))

@@ -5,6 +5,8 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+import pytest
+
 SCRIPT = Path(__file__).resolve().parents[2] / "tools" / "model_card.py"
 spec = importlib.util.spec_from_file_location("model_card", SCRIPT)
 model_card = importlib.util.module_from_spec(spec)
@@ -36,3 +38,18 @@ def test_a_stage_trained_on_a_lent_gpu_names_the_gpu_and_the_echoed_clips():
            "config": {**config, "run": {"precision": "fp32"}}}
     assert model_card.stage_summary(cpu, previous=118).endswith(
         "CPU only: AMD EPYC, 2 logical cores (shared), 1 torch thread(s), torch 2.13.0+cpu, fp32")
+
+
+def test_sibling_legs_of_a_stage_are_read_in_training_order(tmp_path):
+    """Two legs trained side by side by one config (training-stage141a.json, -141b.json) sort after the stages
+    before them and by their letter; a file name that is neither a number nor a number and a letter is named."""
+    for stem in ("135", "141b", "141a", "9"):
+        (tmp_path / f"training-stage{stem}.json").write_text(f'{{"stage": "{stem}"}}')
+    numbered = {model_card.stage_label(p.stem.removeprefix("training-stage")): p
+                for p in tmp_path.glob("training-stage*.json")}
+    assert sorted(numbered, key=lambda label: model_card.stage_order(str(label))) == [9, 135, "141a", "141b"]
+    soup = {"stages": [{"stages": [118, 135], "weights": [0.75, 0.25]}, "141a", "141b"], "weights": [0.5, 0.25, 0.25]}
+    assert model_card.average_text(soup) == ("0.5 x (0.75 x stage 118 + 0.25 x stage 135) + 0.25 x stage 141a + "
+                                             "0.25 x stage 141b")
+    with pytest.raises(ValueError, match="training-stage141-b.json"):
+        model_card.stage_order("141-b")
