@@ -67,12 +67,17 @@ METHOD_NAMES = {"d4rt": "**d4rt-tiny (this model)**", "oracle": "oracle (exact g
 def load_sources(directory: Path = SOURCES) -> dict:
     sources = {name: json.loads((directory / f"{name}.json").read_text()) for name in (f"eval-{BENCHMARK}", "focal")}
     with_reference_methods(sources[f"eval-{BENCHMARK}"], directory)
-    numbered = {stage_label(p.stem.removeprefix("training-stage")): p for p in directory.glob("training-stage*.json")}
-    sources["training"] = {number: json.loads(numbered[number].read_text())
-                           for number in sorted(numbered, key=lambda label: stage_order(str(label)))}
+    sources["training"] = training_summaries(directory)
     shipped = directory / "shipped-weights.json"
     sources["shipped"] = json.loads(shipped.read_text()) if shipped.is_file() else None
     return sources
+
+
+def training_summaries(directory: Path) -> dict[int | str, dict]:
+    """Every ``training-stage*.json`` in ``directory``, keyed by :func:`stage_label`, in training order."""
+    numbered = {stage_label(p.stem.removeprefix("training-stage")): p for p in directory.glob("training-stage*.json")}
+    return {label: json.loads(numbered[label].read_text())
+            for label in sorted(numbered, key=lambda label: stage_order(str(label)))}
 
 
 def stage_order(label: str) -> tuple[int, str]:

@@ -45,9 +45,8 @@ def test_sibling_legs_of_a_stage_are_read_in_training_order(tmp_path):
     before them and by their letter; a file name that is neither a number nor a number and a letter is named."""
     for stem in ("135", "141b", "141a", "9"):
         (tmp_path / f"training-stage{stem}.json").write_text(f'{{"stage": "{stem}"}}')
-    numbered = {model_card.stage_label(p.stem.removeprefix("training-stage")): p
-                for p in tmp_path.glob("training-stage*.json")}
-    assert sorted(numbered, key=lambda label: model_card.stage_order(str(label))) == [9, 135, "141a", "141b"]
+    summaries = model_card.training_summaries(tmp_path)
+    assert list(summaries) == [9, 135, "141a", "141b"] and summaries["141a"] == {"stage": "141a"}
     soup = {"stages": [{"stages": [118, 135], "weights": [0.75, 0.25]}, "141a", "141b"], "weights": [0.5, 0.25, 0.25]}
     assert model_card.average_text(soup) == ("0.5 x (0.75 x stage 118 + 0.25 x stage 135) + 0.25 x stage 141a + "
                                              "0.25 x stage 141b")
