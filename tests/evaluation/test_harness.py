@@ -186,9 +186,11 @@ def test_confidence_error_samples_follow_the_sequence_alignment():
     assert len(confidence_error_samples(pred, confidence, gt, fit, count=100)) == 100
 
 
-def test_cli_errors(tmp_path, capsys):
+def test_cli_errors(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # where the default output (and its .partial folder) would go
     assert main(["eval", "--benchmark", "sintel", "--baseline", "oracle"]) == 2
     assert "pass --data DIR" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())  # refused before anything was written
     assert main(["eval", "--benchmark", synthetic_benchmark.NAME]) == 2
     assert "pass --checkpoint and/or --baseline" in capsys.readouterr().err
     assert main(["eval", "--data", str(tmp_path), "--baseline", "oracle"]) == 2

@@ -61,6 +61,7 @@ def run(args) -> int:
     benchmark = get_benchmark(args.benchmark) if args.benchmark else folder_benchmark(args.data, args.format)
     if args.data is not None and not benchmark.needs_data:
         raise UserError(f"{benchmark.name} is generated, not read: drop --data")
+    benchmark.sequence_names(args.data)  # a missing or incomplete dataset is refused before any file is written
     baselines = args.baseline
     if baselines is None:
         if args.checkpoint is None:
