@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,6 +49,23 @@ def check_pose_pairs(pairs: str, name: str = "pose_pairs") -> str:
     if pairs not in POSE_PAIRS:
         raise UserError(f"{name} must be one of {', '.join(POSE_PAIRS)}, got {pairs!r}")
     return pairs
+
+
+# Moving-object masks (d4rt.reconstruction.motion; here, torch-free, for the command line's help and checks): the
+# frames of its window each pixel is compared with, spread from the window's first to its last frame, and the
+# fraction of its depth a surface must travel to be called moving: far above the oracle's rounding (1e-6), below
+# the slowest body the synthetic engine moves over a window.
+MOTION_TARGETS = 5
+MOTION_THRESHOLD = 0.05
+
+
+def check_motion_options(threshold: float, targets: int) -> None:
+    """One-line :class:`UserError` s for moving-object mask options the recipe cannot use."""
+    if isinstance(threshold, bool) or not (isinstance(threshold, numbers.Real) and math.isfinite(threshold)
+                                           and threshold > 0):
+        raise UserError(f"the motion threshold must be a finite number > 0 (a fraction of depth), got {threshold!r}")
+    if isinstance(targets, bool) or not isinstance(targets, numbers.Integral) or targets < 2:
+        raise UserError(f"the number of motion target frames must be an integer >= 2, got {targets!r}")
 
 
 PATCH_SOURCES = ("encoder", "original")
@@ -136,6 +154,10 @@ class D4RTConfig:
         flip_average: answer every query on the video and on its left-right mirror and average the two
             (:mod:`d4rt.reconstruction.flip_average`; not in paper): two encoder passes and twice the queries
             for answers with less of the model's own error. Saved with the weights for the same reason.
+        motion_threshold: the fraction of its depth a surface must travel to be called moving by
+            ``Reconstruction.motion_masks`` (:mod:`d4rt.reconstruction.motion`) when the caller names none: a
+            model's static points wander by its own error, so each model carries the threshold measured for it on
+            held-out clips (``tools/motion_mask_probe.py``); the oracle's default is ``MOTION_THRESHOLD``.
 
     Runtime
         layer_norm_eps: epsilon of every LayerNorm (1e-6, as VideoMAE v2).
@@ -179,6 +201,7 @@ class D4RTConfig:
     # inference default
     pose_pairs: str = "first"
     flip_average: bool = False
+    motion_threshold: float = MOTION_THRESHOLD
     # runtime
     layer_norm_eps: float = 1e-6
     init_std: float = 0.02
@@ -240,6 +263,9 @@ class D4RTConfig:
             raise UserError(f"config target_frame_heads must be an integer in 0-{self.decoder_heads} (decoder_heads), "
                             f"got {self.target_frame_heads!r}")
         check_pose_pairs(self.pose_pairs, "config pose_pairs")
+        if not _is_number(self.motion_threshold) or not (math.isfinite(self.motion_threshold)
+                                                         and self.motion_threshold > 0):
+            raise UserError(f"config motion_threshold must be a finite number > 0, got {self.motion_threshold!r}")
         if min(self.pixel_std) <= 0:
             raise UserError(f"config pixel_std must be positive, got {list(self.pixel_std)}")
 

@@ -22,6 +22,7 @@ from PIL import Image
 
 from d4rt.cli import main
 from d4rt.config import D4RTConfig
+from d4rt.geometry.transforms import similarity_times_pose
 from d4rt.io.formats import FORMATS, rerun_available
 from d4rt.io.video import write_video
 from d4rt.model import D4RT
@@ -139,8 +140,8 @@ def test_long_video_windows_under_bf16(tmp_path, clip, checkpoint, cli):
     video = tmp_path / "v.npy"
     np.save(video, clip.rgb)
     r = cli("reconstruct", video, "-o", tmp_path / "out", "--checkpoint", checkpoint, "--max-frames", "7",
-            "--window", "4", "--overlap", "2", "--bf16", "--tracks", "2", "--outputs", "npz,tum,dense-tracks",
-            "--dense-resolution", "8x6")
+            "--window", "4", "--overlap", "2", "--bf16", "--tracks", "2", "--outputs",
+            "npz,tum,dense-tracks,motion-masks", "--dense-resolution", "8x6", "--motion-resolution", "8x6")
     assert r.returncode == 0 and "under bf16 autocast" in r.stdout, r.stderr
     # Windows [0, 4), [2, 6), [3, 7); the source keeps one encoded window, so recipes that go back to a
     # window encode it again.
@@ -153,6 +154,12 @@ def test_long_video_windows_under_bf16(tmp_path, clip, checkpoint, cli):
         n = len(dense["sources"])
         assert dense["points_world"].shape == (n, 7, 3) and tuple(dense["resolution"]) == (6, 8)
         assert float(dense["coverage"]) == 1.0 and 0 < int(dense["num_queries"]) < int(dense["naive_num_queries"])
+    with np.load(tmp_path / "out" / "motion" / "motion.npz") as motion:  # each frame compared within its window
+        # (untrained weights: where they answer a depth <= 0 there is no surface, NaN, and never "moving")
+        rel, dynamic = motion["relative_motion"], motion["dynamic"]
+        assert dynamic.shape == rel.shape == (7, 6, 8) and np.isfinite(rel).any()
+        assert (dynamic == (np.nan_to_num(rel) > 0.05)).all()
+        assert motion["target_frames"].tolist() == [[0, 1, 2, 3]] * 4 + [[2, 3, 4, 5]] * 2 + [[3, 4, 5, 6]]
 
 
 def _make_bad_inputs(d: Path, clip):
@@ -227,6 +234,8 @@ def test_bad_options_and_debug(tmp_path, clip, cli):
                             (["--outputs", "ply,obj"], "unknown output format"),
                             (["--stride", "0"], "stride must be >= 1"),
                             (["--threads", "0"], "--threads must be >= 1"),
+                            (["--motion-threshold", "0"], "motion threshold must be a finite number > 0"),
+                            (["--motion-resolution", "tiny"], "--motion-resolution must be"),
                             (["--device", "cuda:7"] if not torch.cuda.is_available() else ["--device", "nonsense"],
                              "--device")):
         r = cli("reconstruct", video, "-o", tmp_path / "out", *option)
@@ -235,6 +244,42 @@ def test_bad_options_and_debug(tmp_path, clip, cli):
     r = cli("reconstruct", tmp_path / "missing.mp4", "-o", tmp_path / "out", "--debug")
     assert r.returncode == 2 and "Traceback" in r.stderr and r.stderr.strip().endswith("does not exist")
     assert not (tmp_path / "out").exists()
+
+
+def test_known_poses_and_scale(tmp_path, clip, checkpoint, cli):
+    """--known-poses carries every file into the given poses' world (here the model's own estimate moved and scaled
+    by a Sim(3), so the fit is exact), --scale multiplies lengths; their refusals are one line each."""
+    video = tmp_path / "v.npy"
+    np.save(video, clip.rgb)
+    base = ("reconstruct", video, "--checkpoint", checkpoint, "--tracks", "2", "--outputs", "npz")
+    assert cli(*base, "-o", tmp_path / "plain").returncode == 0
+    with np.load(tmp_path / "plain" / "reconstruction.npz") as npz:
+        estimated, depth = npz["cam_to_world"], npz["depth"]
+    sim = np.diag([3.0, 3.0, 3.0, 1.0])
+    sim[:3, 3] = [1.0, 2.0, 3.0]
+    known = np.stack([similarity_times_pose(sim, pose) for pose in estimated])
+    np.save(tmp_path / "poses.npy", known)
+    r = cli(*base, "-o", tmp_path / "known", "--known-poses", tmp_path / "poses.npy")
+    assert r.returncode == 0 and "carried into the known poses' world: scale 3" in r.stderr, r.stderr
+    with np.load(tmp_path / "known" / "reconstruction.npz") as npz:
+        np.testing.assert_allclose(npz["cam_to_world"], known, atol=1e-4)
+        np.testing.assert_allclose(npz["depth"], 3.0 * depth, rtol=1e-4)
+    r = cli(*base, "-o", tmp_path / "scaled", "--scale", "0.5")
+    assert r.returncode == 0, r.stderr
+    with np.load(tmp_path / "scaled" / "reconstruction.npz") as npz:
+        np.testing.assert_allclose(npz["depth"], 0.5 * depth, rtol=1e-5)
+        np.testing.assert_allclose(npz["cam_to_world"][:, :3, 3], 0.5 * estimated[:, :3, 3], atol=1e-6)
+    (tmp_path / "poses.txt").write_text("0 0 0 0 0 0 0 1\n")
+    np.save(tmp_path / "few.npy", known[:3])
+    for extra, message in ((("--scale", "-1"), "--scale must be a finite number > 0"),
+                           (("--scale", "2", "--known-poses", tmp_path / "poses.npy"), "not both"),
+                           (("--known-poses", tmp_path / "nowhere.npy"), "does not exist"),
+                           (("--known-poses", tmp_path / "poses.txt"), "these frames have no clock"),
+                           (("--known-poses", tmp_path / "few.npy"), "holds 3 poses but source frame 7 is used")):
+        r = cli(*base, "-o", tmp_path / "refused", *extra)
+        errors = [line for line in r.stderr.splitlines() if "error" in line]
+        assert r.returncode == 2 and len(errors) == 1 and message in errors[0], (extra, r.stderr)
+        assert not (tmp_path / "refused").exists()
 
 
 def test_output_folder_and_confidence_refusals(tmp_path, clip, checkpoint, cli):

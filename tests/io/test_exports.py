@@ -16,7 +16,7 @@ from trimesh.transformations import quaternion_matrix
 
 from d4rt.errors import UserError
 from d4rt.geometry.camera import pixel_to_uv, unproject_depth
-from d4rt.geometry.transforms import apply_transform, invert_rigid
+from d4rt.geometry.transforms import apply_transform, invert_rigid, similarity_times_pose
 from d4rt.io import exports, formats, output_plan, writers
 from d4rt.io.exports import export_reconstruction
 from d4rt.io.depth_png import read_depth_png
@@ -93,6 +93,71 @@ def test_dense_tracks_file_matches_ground_truth_and_is_left_out_of_all(clip, sav
     with pytest.raises(UserError, match="no encoder resolution"):  # the oracle has none
         output_plan.compute_outputs(rec, ["dense-tracks"], dense_resolution="encoder")
     assert rec.queries_decoded == 0  # both refused before any decoding
+
+
+def test_motion_masks_files_match_the_oracle_and_are_left_out_of_all(clip, saved):
+    out, npz = saved
+    assert "motion-masks" not in formats.parse_formats("all") and "dynamic" not in npz
+    truth = clip.reconstruction().motion_masks()
+    assert truth.dynamic.any() and not truth.dynamic.all()  # the premise: some pixels move, some do not
+    with np.load(out / "motion" / "motion.npz") as motion:
+        np.testing.assert_array_equal(motion["dynamic"], truth.dynamic)
+        np.testing.assert_array_equal(motion["relative_motion"], truth.relative_motion)
+        np.testing.assert_array_equal(motion["target_frames"], truth.target_frames)
+        assert float(motion["threshold"]) == 0.05 and tuple(motion["resolution"]) == clip.depth.shape[1:]
+    for k in range(clip.num_frames):
+        png = np.asarray(Image.open(out / "motion" / f"{k:06d}.png"))
+        assert png.dtype == np.uint8 and set(np.unique(png)) <= {0, 255}
+        np.testing.assert_array_equal(png == 255, truth.dynamic[k])
+    rec = clip.reconstruction()
+    with pytest.raises(UserError, match="motion_resolution"):
+        output_plan.compute_outputs(rec, ["tum", "motion-masks"], motion_resolution="huge")
+    with pytest.raises(UserError, match="motion threshold"):
+        output_plan.compute_outputs(rec, ["tum", "motion-masks"], motion_threshold=-1.0)
+    assert rec.queries_decoded == 0  # refused before any decoding
+
+
+def test_known_poses_carry_every_output_into_their_world(clip, tmp_path):
+    """Poses given in a world and units of their own (here the true cameras through a Sim(3)): the files come out
+    in that world, exactly on the oracle: poses equal to the known ones, depth and points scaled and moved."""
+    sim = np.eye(4)
+    sim[:3, :3] = 2.5 * quaternion_matrix([0.9, 0.1, -0.3, 0.2])[:3, :3]  # (trimesh normalises the quaternion)
+    sim[:3, 3] = [1.0, -4.0, 2.0]
+    known = np.stack([similarity_times_pose(sim, pose) for pose in _gt_poses(clip)])
+    out = tmp_path / "known"
+    export_reconstruction(clip.reconstruction(), out, ["npz", "colmap"], track_grid=GRID, known_poses=known)
+    with np.load(out / "reconstruction.npz") as npz:
+        np.testing.assert_allclose(npz["cam_to_world"], known, atol=1e-5)
+        np.testing.assert_allclose(npz["alignment"], sim, atol=1e-6)
+        assert float(npz["alignment_rms"]) < 1e-5
+        np.testing.assert_allclose(npz["depth"], 2.5 * clip.depth, rtol=1e-5)
+        f, (x, y) = npz["point_frames"], npz["point_pixels"].T
+        cam_points = unproject_depth(clip.depth.astype(np.float64), clip.intrinsics)[f, y, x]
+        world = apply_transform(_gt_poses(clip)[f], cam_points)
+        np.testing.assert_allclose(npz["points"], world @ sim[:3, :3].T + sim[:3, 3], atol=1e-3)
+        tracks = npz["tracks"]
+    truth = clip.reconstruction().tracks(np.concatenate([np.zeros((GRID * GRID, 1)), npz_track_pixels(clip)], 1),
+                                         frame="world")
+    np.testing.assert_allclose(tracks, truth.points @ sim[:3, :3].T + sim[:3, 3], atol=1e-4)
+    scaled = tmp_path / "scaled"
+    export_reconstruction(clip.reconstruction(), scaled, ["npz"], track_grid=GRID, scale=0.1)
+    with np.load(scaled / "reconstruction.npz") as npz:
+        np.testing.assert_allclose(npz["depth"], 0.1 * clip.depth, rtol=1e-5)
+        np.testing.assert_allclose(npz["cam_to_world"][:, :3, 3], 0.1 * _gt_poses(clip)[:, :3, 3], atol=1e-6)
+        np.testing.assert_allclose(npz["cam_to_world"][:, :3, :3], _gt_poses(clip)[:, :3, :3], atol=1e-6)
+    rec = clip.reconstruction()
+    for options, message in (({"scale": 0.0}, "scale must be a finite number > 0"),
+                             ({"scale": 2.0, "known_poses": known}, "not both"),
+                             ({"known_poses": known[:3]}, r"known poses must be \(5, 4, 4\)")):
+        with pytest.raises(UserError, match=message):
+            output_plan.compute_outputs(rec, ["npz"], **options)
+    assert rec.queries_decoded == 0  # refused before any decoding
+
+
+def npz_track_pixels(clip) -> np.ndarray:
+    """The (x, y) pixels of the GRID x GRID tracks the exports start from frame 0."""
+    from d4rt.geometry.camera import cell_centres_uv, uv_to_pixel
+    return uv_to_pixel(cell_centres_uv(GRID), clip.height, clip.width)
 
 
 def test_known_intrinsics_hold_at_another_output_resolution(clip, tmp_path):

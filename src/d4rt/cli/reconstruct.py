@@ -11,11 +11,12 @@ import argparse
 import json
 import sys
 from contextlib import nullcontext
+from pathlib import Path
 
 import numpy as np
 from d4rt.progress import progress_bar
 
-from d4rt.config import POSE_PAIRS
+from d4rt.config import MOTION_TARGETS, MOTION_THRESHOLD, POSE_PAIRS, check_motion_options
 from d4rt.errors import UserError
 from d4rt.io.formats import CAMERA_CHOICES, COLMAP_VIEWS, DEFAULT_MAX_POINTS, FORMATS, ON_REQUEST, POINT_SOURCES
 from d4rt.io.shots import DEFAULT_THRESHOLD as DEFAULT_CUT_THRESHOLD
@@ -115,6 +116,22 @@ def register(subparsers) -> None:
     outputs.add_argument("--dense-resolution", default=None, metavar="WxH",
                          help="grid of the dense-tracks output: 'encoder' (the default), 'original' (the input's size: "
                               "T*H*W tracks, costly) or WIDTHxHEIGHT")
+    outputs.add_argument("--known-poses", default=None, metavar="FILE",
+                         help="camera poses of your own (SLAM, motion capture, GPS/IMU, ground truth): a TUM "
+                              "trajectory (.txt, matched to the frames by time) or a .npy of (N, 4, 4) camera-to-world "
+                              "matrices, one per source frame; every output is carried into their world and units by "
+                              "the Sim(3) that maps the estimated cameras onto them (docs/outputs.md)")
+    outputs.add_argument("--scale", type=float, default=None, metavar="S",
+                         help="multiply every length (depth, points, tracks, camera positions) by S, e.g. a known "
+                              "distance over the reconstruction's (the model's units are not metric)")
+    outputs.add_argument("--motion-resolution", default=None, metavar="WxH",
+                         help="size of the motion-masks output: 'encoder' (the default), 'original' (the input's "
+                              f"size; {MOTION_TARGETS + 1} queries per pixel, costly) or WIDTHxHEIGHT")
+    outputs.add_argument("--motion-threshold", type=float, default=None, metavar="F",
+                         help="motion-masks output: a surface is moving when it travels more than this fraction of "
+                              f"its depth between its frame and {MOTION_TARGETS} frames spread over its window "
+                              f"(default: the model's own, motion_threshold in its config.json; {MOTION_THRESHOLD} "
+                              "where it has none)")
     outputs.add_argument("--outputs", default="all",
                          help=f"comma-separated outputs to write: {', '.join(FORMATS)} (default: all, which leaves "
                               f"out the costly {', '.join(ON_REQUEST)})")
@@ -232,6 +249,16 @@ def run(args) -> int:
     resolution = parse_resolution(args.resolution)
     dense_resolution = (args.dense_resolution if args.dense_resolution in (None, "original")
                         else parse_resolution(args.dense_resolution, "--dense-resolution"))
+    motion_resolution = (args.motion_resolution if args.motion_resolution in (None, "original")
+                         else parse_resolution(args.motion_resolution, "--motion-resolution"))
+    if args.motion_threshold is not None:
+        check_motion_options(args.motion_threshold, MOTION_TARGETS)
+    if args.known_poses is not None and args.scale is not None:
+        raise UserError("give --known-poses or --scale, not both (known poses fix the scale themselves)")
+    if args.scale is not None and not (np.isfinite(args.scale) and args.scale > 0):
+        raise UserError(f"--scale must be a finite number > 0, got {args.scale}")
+    if args.known_poses is not None and not Path(args.known_poses).is_file():
+        raise UserError(f"--known-poses {args.known_poses} does not exist")
     formats = parse_formats(args.outputs)
     selection = FrameRange(args.start, args.end, args.stride, args.max_frames)
     if args.threads is not None and args.threads < 1:
@@ -240,6 +267,7 @@ def run(args) -> int:
                         square_pixels=not args.non_square_pixels, min_confidence=args.min_confidence,
                         point_stride=args.point_stride, points_from=args.points_from, track_grid=args.tracks,
                         track_frame=args.track_frame, dense_resolution=dense_resolution, max_points=args.max_points,
+                        motion_resolution=motion_resolution, motion_threshold=args.motion_threshold, scale=args.scale,
                         progress=True)
     if args.threads is not None:
         import torch
@@ -265,8 +293,6 @@ def run(args) -> int:
 def run_many(args, selection, formats, save_options) -> int:
     """Many inputs (d4rt.cli.collection): this process's share of them, the model loaded once; under
     torchrun every rank runs this with its own share."""
-    from pathlib import Path
-
     from d4rt.cli.collection import expand_inputs, run_collection
     from d4rt.devices import native_bf16
     from d4rt.io.exports import spool_folder
@@ -318,6 +344,11 @@ def reconstruct_frames(model, frames, out_dir, args, formats, save_options, bf16
         raise UserError(f"--track-frame {args.track_frame} is past the end of a shot (shots: "
                         f"{', '.join(f'{a}..{b - 1}' for a, b in shots)}); it counts from each shot's first frame")
     options = dict(save_options, fps=frames.fps)
+    if args.known_poses is not None:  # one pose per frame used, sliced per shot below
+        from d4rt.io.trajectory import load_known_poses
+
+        options["known_poses"] = load_known_poses(args.known_poses, frames.indices,
+                                                  frames.timestamps if frames.has_clock else None)
     if options["resolution"] == "auto":
         options["resolution"] = default_resolution(h, w)
     stamps = frames.timestamps if frames.has_clock else None
@@ -362,8 +393,10 @@ def reconstruct_shots(model, frames, shots, out_dir, args, formats, save_options
             else:
                 print(f"shot {k}: frames {a}..{b - 1}")
                 stamps = frames.timestamps[a:b] if frames.has_clock else None
-                reconstruct_clip(model, row_range(frames.rgb, a, b), stamps, stage / f"shot_{k:03d}", args, formats, save_options,
-                                 overwrite=False)
+                known = save_options.get("known_poses")
+                shot_options = save_options if known is None else dict(save_options, known_poses=known[a:b])
+                reconstruct_clip(model, row_range(frames.rgb, a, b), stamps, stage / f"shot_{k:03d}", args, formats,
+                                 shot_options, overwrite=False)
                 row["folder"] = f"shot_{k:03d}"
             rows.append(row)
         summary = {"cuts_before_frames": [a for a, _ in shots[1:]], "cut_threshold": args.cut_threshold, "shots": rows}

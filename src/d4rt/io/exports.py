@@ -23,8 +23,8 @@ def export_reconstruction(rec, directory: str | Path, formats="all", *, overwrit
     ``d4rt.io.formats.FORMATS``, "all", or a comma-separated string) into ``directory`` (new or empty;
     ``overwrite``: its old contents are replaced as a whole, atomically); ``options`` (resolution,
     intrinsics, camera, square_pixels, min_confidence, point_stride, points_from, track_grid, track_frame,
-    dense_resolution, max_points, timestamps, fps) go to :func:`compute_outputs`. Returns the paths
-    written."""
+    dense_resolution, max_points, motion_resolution, motion_threshold, known_poses, scale, timestamps, fps) go
+    to :func:`compute_outputs`. Returns the paths written."""
     names = parse_formats(formats)
     directory = check_output_dir(directory, overwrite)
     with spool_folder(directory) as spool:  # the arrays that grow with the video wait on disk, not in memory

@@ -22,9 +22,11 @@ FORMATS = {
     "rerun": "reconstruction.rrd",
     "html": "viewer.html",
     "dense-tracks": "dense_tracks.npz",
+    "motion-masks": "motion/000000.png ... (8-bit, 255 = moving) + motion/motion.npz",
 }
-# Asked for by name only ("all" leaves them out): dense tracking decodes millions of queries.
-ON_REQUEST = ("dense-tracks",)
+# Asked for by name only ("all" leaves them out): dense tracking decodes millions of queries, moving-object masks
+# several queries per pixel.
+ON_REQUEST = ("dense-tracks", "motion-masks")
 # What each format needs decoded.
 FORMAT_NEEDS = {
     "npz": {"depth", "cameras", "points", "tracks"},
@@ -38,6 +40,7 @@ FORMAT_NEEDS = {
     "rerun": {"depth", "cameras", "points", "tracks"},
     "html": {"points", "cameras", "tracks"},
     "dense-tracks": {"dense", "cameras"},
+    "motion-masks": {"motion"},
 }
 DEFAULT_FPS = 10.0  # for the videos and the viewer when the input has no clock
 # Points of the COLMAP model: each costs COLMAP_VIEWS queries, so this bounds both the file and the cost

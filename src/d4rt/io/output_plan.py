@@ -9,13 +9,15 @@ from pathlib import Path
 
 import numpy as np
 
+from d4rt.config import MOTION_TARGETS, check_motion_options
 from d4rt.errors import UserError
 from d4rt.geometry.camera import cell_centres_uv, uv_to_pixel
-from d4rt.geometry.transforms import apply_transform
+from d4rt.geometry.known_poses import similarity_to_known_poses
+from d4rt.geometry.transforms import apply_transform, similarity_times_pose
 from d4rt.geometry.view import View
 from d4rt.geometry.voxel import voxel_subsample
 from d4rt.io.colmap_export import multiview_points
-from d4rt.disk_array import DiskArray, ranges
+from d4rt.disk_array import DiskArray, frame_blocks, ranges
 from d4rt.io.formats import CAMERA_CHOICES, COLMAP_VIEWS, DEFAULT_FPS, DEFAULT_MAX_POINTS, FORMAT_NEEDS, POINT_SOURCES, ZOOM_SPREAD
 from d4rt.io.outputs import ReconstructionOutputs
 from d4rt.progress import progress_bar
@@ -27,7 +29,8 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
                     square_pixels: bool = True, min_confidence: float | None = None,
                     point_stride: int | None = None, track_grid: int = 16, track_frame: int = 0,
                     dense_resolution=None, max_points: int = DEFAULT_MAX_POINTS, points_from: str = "depth",
-                    timestamps=None,
+                    motion_resolution=None, motion_threshold: float | None = None, known_poses=None,
+                    scale: float | None = None, timestamps=None,
                     fps: float | None = None, progress: bool = False, spool=None) -> ReconstructionOutputs:
     """Decode what ``formats`` need from a :class:`d4rt.reconstruction.Reconstruction`.
 
@@ -51,6 +54,17 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     costs T * H * W tracks. max_points: at most this many points in the COLMAP model: pixels of the
     point cloud, one per voxel (the most confident), each observed in the world in COLMAP_VIEWS
     frames of its window and kept where seen in 2 or more (:func:`d4rt.io.colmap_export.multiview_points`).
+    motion_resolution: the moving-object masks' size, as ``dense_resolution`` (each pixel costs MOTION_TARGETS
+    + 1 queries); motion_threshold: a surface is moving when it travels more than this fraction of its depth
+    (:meth:`d4rt.reconstruction.Reconstruction.motion_masks`; None: the reconstruction's own, a model's from its
+    config).
+    known_poses: (T, 4, 4) camera-to-world poses of the frames in a world and units of your own (SLAM, motion
+    capture, GPS/IMU, ground truth): every output is carried into that world by the Sim(3) that maps the estimated
+    cameras onto them (:func:`d4rt.geometry.known_poses.similarity_to_known_poses`: rotation from the orientations,
+    scale and offset from the centres); the poses written are the estimated ones carried so (every file stays
+    consistent with the geometry), ``alignment_rms`` says how far their centres lie from the known ones.
+    scale: multiply every length (depth, points, tracks, camera positions) by it, e.g. a known distance over the
+    reconstruction's; the world stays camera 0. At most one of the two; both are stored in ``alignment`` (4, 4).
     timestamps: (T,) seconds (default: frame numbers);
     fps: for the videos and the viewer (default: from the timestamps, else 10).
     spool: a folder for the arrays that grow with the video (depth maps, confidences, point cloud): they
@@ -80,13 +94,27 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
     out = ReconstructionOutputs(rec.video, stamps, float(fps or (DEFAULT_FPS if timestamps is None else _rate(stamps))),
                                 min_confidence)
     out_h, out_w = rec.output_size(resolution)
+    if known_poses is not None and scale is not None:
+        raise UserError("give known poses or a scale, not both (known poses fix the scale themselves)")
+    if scale is not None and not (isinstance(scale, (int, float)) and np.isfinite(scale) and scale > 0):
+        raise UserError(f"the scale must be a finite number > 0, got {scale!r}")
+    if known_poses is not None:
+        known_poses = np.asarray(known_poses, dtype=np.float64)
+        if known_poses.shape != (t, 4, 4):
+            raise UserError(f"known poses must be ({t}, 4, 4) camera-to-world matrices, one per frame, got shape "
+                            f"{known_poses.shape}")
+        needs.add("cameras")
     if "dense" in needs:  # checked before any decoding
-        dense_size = _dense_size(rec, dense_resolution)
+        dense_size = _grid_size(rec, dense_resolution, "dense_resolution")
+    if "motion" in needs:
+        motion_size = _grid_size(rec, motion_resolution, "motion_resolution")
+        if motion_threshold is not None:
+            check_motion_options(motion_threshold, MOTION_TARGETS)
     if "points" in needs and points_from == "depth":
         needs.add("depth")
     if "depth" in needs:
         needs.add("cameras")  # the depth maps' intrinsics
-    stages = [s for s in ("cameras", "depth", "points", "tracks", "colmap-points", "dense") if s in needs]
+    stages = [s for s in ("cameras", "depth", "points", "tracks", "colmap-points", "dense", "motion") if s in needs]
     bar = progress_bar(stages, desc="query", unit="stage", disable=not progress)
     for stage in bar:
         bar.set_postfix_str(stage)
@@ -96,6 +124,12 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
             cams = rec.cameras(intrinsics=intrinsics, camera="single" if camera == "auto" else camera,
                                square_pixels=square_pixels)
             out.video_intrinsics, out.cam_to_world = cams.intrinsics, cams.cam_to_world
+            if known_poses is not None:  # fitted at once: a hopeless fit stops before the long stages
+                out.alignment, out.alignment_rms = similarity_to_known_poses(out.cam_to_world, known_poses)
+                fitted = np.cbrt(np.linalg.det(out.alignment[:3, :3]))
+                print(f"d4rt: outputs carried into the known poses' world: scale {fitted:.4g}; the known camera "
+                      f"centres lie {out.alignment_rms:.3g} (RMS, in their units) from the estimated ones",
+                      file=sys.stderr)
         elif stage == "depth":
             out.depth = _new_array(spool, "depth", (t, out_h, out_w), np.float32)
             out.confidence = _new_array(spool, "confidence", (t, out_h, out_w), np.float32)
@@ -123,7 +157,43 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
             out.colmap = _colmap_points(rec, out, max_points)
         elif stage == "dense":
             out.dense = _dense_arrays(rec.dense_tracks(dense_size), out.cam_to_world)
+        elif stage == "motion":
+            masks = rec.motion_masks(motion_size, threshold=motion_threshold)
+            out.motion = {"dynamic": masks.dynamic, "relative_motion": masks.relative_motion,
+                          "threshold": np.float64(masks.threshold), "target_frames": masks.target_frames,
+                          "resolution": np.array(motion_size)}
+    if scale is not None:
+        out.alignment = np.diag([scale, scale, scale, 1.0])
+    if out.alignment is not None:
+        carry_outputs(out, out.alignment)
     return out
+
+
+def carry_outputs(out: ReconstructionOutputs, sim: np.ndarray) -> None:
+    """Map every output in place by the Sim(3) ``sim`` (4, 4) [sR | t]: world positions (points, tracks, COLMAP and
+    dense-track world points) and camera poses by the whole of it, lengths in a camera's frame (depth maps,
+    dense-track camera points) by its scale; intrinsics, confidences and masks do not change. Arrays on disk are
+    rewritten a block at a time."""
+    scale = float(np.cbrt(np.linalg.det(sim[:3, :3])))
+
+    def move(points):
+        return points @ sim[:3, :3].T + sim[:3, 3]
+
+    if out.cam_to_world is not None:
+        out.cam_to_world = np.stack([similarity_times_pose(sim, pose) for pose in out.cam_to_world])
+    if out.depth is not None:
+        for a, b in frame_blocks(out.depth):
+            out.depth[a:b] = out.depth[a:b] * np.float32(scale)
+    if out.points is not None:
+        for a, b in ranges(len(out.points), POINT_BLOCK_PIXELS):
+            out.points[a:b] = move(np.asarray(out.points[a:b], dtype=np.float64)).astype(np.float32)
+    if out.tracks is not None:
+        out.tracks = move(out.tracks)
+    if out.colmap is not None:
+        out.colmap["xyz"] = move(out.colmap["xyz"])
+    if out.dense is not None:
+        out.dense["points_world"] = move(out.dense["points_world"].astype(np.float64)).astype(np.float32)
+        out.dense["points_camera"] = out.dense["points_camera"] * np.float32(scale)
 
 
 def choose_camera_model(rec, square_pixels: bool = True, spread: float = ZOOM_SPREAD) -> str:
@@ -296,12 +366,14 @@ def observation_frames(windows, sources: np.ndarray, views: int) -> np.ndarray:
     return out
 
 
-def _dense_size(rec, dense_resolution) -> tuple[int, int]:
-    if dense_resolution is None:
+def _grid_size(rec, resolution, name: str) -> tuple[int, int]:
+    """(H, W) of an output that costs many queries per pixel (dense tracks, moving-object masks): None is the
+    encoder's input size where the answerer has one (the input's size for an oracle)."""
+    if resolution is None:
         return rec.output_size("encoder" if rec.source.encoder_size is not None else None)
-    if isinstance(dense_resolution, str) and dense_resolution not in ("encoder", "original"):
-        raise UserError(f"dense_resolution must be 'encoder', 'original' or (H, W), got {dense_resolution!r}")
-    return rec.output_size(None if dense_resolution == "original" else dense_resolution)
+    if isinstance(resolution, str) and resolution not in ("encoder", "original"):
+        raise UserError(f"{name} must be 'encoder', 'original' or (H, W), got {resolution!r}")
+    return rec.output_size(None if resolution == "original" else resolution)
 
 
 def _dense_arrays(dense, cam_to_world: np.ndarray) -> dict:

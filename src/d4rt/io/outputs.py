@@ -51,6 +51,9 @@ class ReconstructionOutputs:
     track_uv: np.ndarray | None = None
     point_offsets: np.ndarray | None = None  # (T + 1,): frame k's points are [offsets[k], offsets[k + 1]) (frame order)
     dense: dict | None = None  # the arrays of dense_tracks.npz (written by that format alone)
+    motion: dict | None = None  # the arrays of motion/motion.npz (written by that format alone)
+    alignment: np.ndarray | None = None  # (4, 4) Sim(3) every output was carried by (known poses or a scale)
+    alignment_rms: float | None = None  # RMS distance of the known camera centres from the carried estimate
     colmap: dict | None = None  # the multi-view points of the COLMAP model (io.colmap_export.multiview_points, colors)
 
     @property

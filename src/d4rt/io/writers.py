@@ -7,6 +7,7 @@ from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 
 from d4rt.io.colmap_export import write_colmap
 from d4rt.io.depth_png import write_depth_pngs
@@ -41,7 +42,7 @@ def write_outputs(out: ReconstructionOutputs, directory: str | Path, formats, *,
 
 def _write_npz(out: ReconstructionOutputs, stage: Path, title: str) -> Path:
     arrays = {f.name: getattr(out, f.name) for f in fields(out)
-              if f.name not in ("rgb", "fps", "min_confidence", "dense", "colmap", "point_offsets")}
+              if f.name not in ("rgb", "fps", "min_confidence", "dense", "motion", "colmap", "point_offsets")}
     arrays.update(fps=np.float64(out.fps), video_size=np.array(out.rgb.shape[1:3]),
                   min_confidence=np.float64(np.nan if out.min_confidence is None else out.min_confidence))
     return write_npz(stage / "reconstruction.npz", {k: v for k, v in arrays.items() if v is not None})
@@ -99,6 +100,15 @@ def _write_dense(out, stage, title):
     return path
 
 
+def _write_motion(out, stage, title):
+    folder = stage / "motion"
+    folder.mkdir()
+    for k, mask in enumerate(out.motion["dynamic"]):
+        Image.fromarray(np.where(mask, 255, 0).astype(np.uint8)).save(folder / f"{k:06d}.png")
+    np.savez_compressed(folder / "motion.npz", **out.motion)
+    return folder
+
+
 # scene.glb holds at most this many points, evenly spaced through the cloud (points.ply holds them all):
 # viewers of GLB files slow down long before, and a long video's cloud is not gathered in memory for it.
 GLB_MAX_POINTS = 1_000_000
@@ -106,7 +116,8 @@ GLB_MAX_POINTS = 1_000_000
 
 _WRITERS = {"npz": _write_npz, "depth": _write_depth, "depth-video": _write_depth_video, "ply": _write_ply,
             "glb": _write_glb, "colmap": _write_colmap, "tum": _write_tum, "tracks-video": _write_tracks_video,
-            "rerun": _write_rerun, "html": _write_html, "dense-tracks": _write_dense}
+            "rerun": _write_rerun, "html": _write_html, "dense-tracks": _write_dense,
+            "motion-masks": _write_motion}
 
 
 def track_pixels(out: ReconstructionOutputs) -> tuple[np.ndarray, np.ndarray]:

@@ -1,5 +1,5 @@
 """Everything from queries: depth, point clouds, 3D tracks, cameras and dense tracking (paper Sec. 2.1,
-Tab. 1, Alg. 1, App. B and C), over anything that answers queries.
+Tab. 1, Alg. 1, App. B and C), and moving-object masks (not in the paper), over anything that answers queries.
 
 The same recipes run on the trained model's encoded scene and on the synthetic engine's exact oracle;
 on the oracle they must be exact, which tests the recipes independently of how well a model is
@@ -17,7 +17,7 @@ from functools import cached_property
 import numpy as np
 import torch
 
-from d4rt.config import check_pose_pairs
+from d4rt.config import MOTION_TARGETS, MOTION_THRESHOLD, check_motion_options, check_pose_pairs
 from d4rt.errors import UserError
 from d4rt.disk_array import DiskArray
 from d4rt.geometry.camera import cell_centres_uv, pixel_grid, pixel_to_uv
@@ -26,7 +26,8 @@ from d4rt.geometry.umeyama import Similarity
 from d4rt.progress import progress_bar
 from d4rt.reconstruction.cameras import intrinsics_from_points
 from d4rt.reconstruction.dense import occupancy_tracking
-from d4rt.reconstruction.results import Cameras, DenseTracks, Depth, PointCloud, Tracks
+from d4rt.reconstruction.motion import target_frames, window_relative_motion
+from d4rt.reconstruction.results import Cameras, DenseTracks, Depth, MotionMasks, PointCloud, Tracks
 from d4rt.reconstruction.query_patterns import grid_queries, track_queries
 from d4rt.reconstruction.sources import AnswererSource, ModelSource, as_source
 from d4rt.reconstruction.windows import (align_windows, hand_off, keeping_windows, owned, owners, plan_windows,
@@ -57,12 +58,13 @@ class Reconstruction:
     (bounds memory). grid: points per side of the grid used for cameras and window alignment.
     pose_pairs: which camera each frame's pose is fitted against: "first" (the paper's recipe: the window's
     first camera) or "adjacent" (the previous frame's camera, the fits chained; see
-    ``d4rt.reconstruction.windows.POSE_PAIRS``). progress: show progress bars (default: only for long work).
+    ``d4rt.reconstruction.windows.POSE_PAIRS``). motion_threshold: the default of :meth:`motion_masks` (a model's
+    own, from its config, with :meth:`from_model`). progress: show progress bars (default: only for long work).
     """
 
     def __init__(self, answerer, video, *, window: int | None = None, overlap: int | None = None,
                  chunk_size: int = 1 << 16, grid: int = DEFAULT_GRID, align_fraction: float = 0.85,
-                 pose_pairs: str = "first", progress: bool | None = None):
+                 pose_pairs: str = "first", motion_threshold: float = MOTION_THRESHOLD, progress: bool | None = None):
         self.video = _as_uint8_video(video)
         self.source = as_source(answerer)
         self.num_frames, self.height, self.width = self.video.shape[:3]
@@ -71,6 +73,8 @@ class Reconstruction:
         if chunk_size < 1 or grid < 2 or not 0 < align_fraction <= 1:
             raise UserError("chunk_size must be >= 1, grid >= 2 and align_fraction in (0, 1]")
         self.pose_pairs = check_pose_pairs(pose_pairs)
+        check_motion_options(motion_threshold, MOTION_TARGETS)
+        self.motion_threshold = float(motion_threshold)
         self.chunk_size, self.grid, self.align_fraction, self.progress = chunk_size, grid, align_fraction, progress
         self.windows = plan_windows(self.num_frames, window or self.source.max_window, overlap)
         self.queries_decoded = 0  # every query answered so far (the recipes' cost)
@@ -81,12 +85,15 @@ class Reconstruction:
         """The recipes over a D4RT model (anything with ``encode(video) -> answerer`` and ``config``):
         each window of ``video`` (T, H, W, 3) is encoded when first asked for (:class:`ModelSource`);
         ``on_encode`` is called after each encode (a progress bar's update, say); ``options`` as for
-        the constructor, with ``pose_pairs`` (or None) defaulting to the model's own (``config.pose_pairs``);
+        the constructor, with ``pose_pairs`` and ``motion_threshold`` (or None) defaulting to the model's own
+        (``config.pose_pairs``, ``config.motion_threshold``);
         ``flip_average`` (None: the model's ``config.flip_average``) averages every answer with the mirrored
         video's (:mod:`d4rt.reconstruction.flip_average`)."""
         source = ModelSource(model, video, max_window=window, on_encode=on_encode, flip_average=flip_average)
         if options.get("pose_pairs") is None:
             options["pose_pairs"] = model.config.pose_pairs
+        if options.get("motion_threshold") is None:
+            options["motion_threshold"] = model.config.motion_threshold
         return cls(source, video, window=window, overlap=overlap, **options)
 
     @classmethod
@@ -159,6 +166,38 @@ class Reconstruction:
                 frames = owned_frames[i:i + step]
                 yield frames, Depth(*window_depth(lambda q: self._ask(win, q), frames, uv, self._window_scale(win),
                                                   h, w))
+
+    def motion_masks(self, resolution: tuple[int, int] | str | None = None, threshold: float | None = None,
+                     targets: int = MOTION_TARGETS) -> MotionMasks:
+        """Moving-object masks (not in the paper; :mod:`d4rt.reconstruction.motion`): every pixel of frame t
+        asked at its own time and at ``targets`` frames t' spread over its window, all in camera t
+        ((u, v, t, t, t) and (u, v, t, t', t)): a static surface answers the same point each time, whatever
+        the camera does, so the largest distance between the answers, divided by the depth, is the surface's
+        own motion. ``dynamic`` = that fraction > ``threshold`` (None: the reconstruction's ``motion_threshold``,
+        a model's own from its config). Costs ``targets`` + 1 queries per pixel.
+
+        resolution: as for :meth:`depth`. With several windows a pixel is compared with frames of the window
+        that owns its frame. Returns MotionMasks(relative_motion (T, H, W) float32, dynamic (T, H, W) bool,
+        threshold, target_frames (T, K) int64).
+        """
+        threshold = self.motion_threshold if threshold is None else threshold
+        check_motion_options(threshold, targets)
+        h, w = self.output_size(resolution)
+        uv = pixel_to_uv(pixel_grid(h, w), h, w)
+        relative = np.full((self.num_frames, h, w), np.nan, dtype=np.float32)
+        # Every window but a video's only one has the same length, hence the same number of targets.
+        compared = np.zeros((self.num_frames, len(target_frames(*self.windows[0], targets))), dtype=np.int64)
+        for win, (start, stop) in enumerate(self.windows):
+            goals = target_frames(start, stop, targets)
+            owned_frames = np.array(owned(self.windows, win))
+            step = max(1, DEPTH_QUERIES_PER_STEP // (h * w * (len(goals) + 1)))
+            for i in range(0, len(owned_frames), step):
+                frames = owned_frames[i:i + step]
+                part = window_relative_motion(lambda q: self._ask(win, q), frames, uv, goals)
+                relative[frames] = part.reshape(-1, h, w)
+            compared[owned_frames] = goals
+        dynamic = np.nan_to_num(relative, nan=0.0) > threshold
+        return MotionMasks(relative, dynamic, float(threshold), compared)
 
     @cached_property
     def _camera_grid(self) -> tuple[list[dict], np.ndarray]:

@@ -20,6 +20,20 @@ class Depth:
 
 
 @dataclass
+class MotionMasks:
+    """Which pixels show a moving surface (``Reconstruction.motion_masks``).
+
+    relative_motion: (T, H, W) float32, how far each pixel's surface point travels in the world between its
+    frame and the target frames of its window, as a fraction of its depth (NaN: no surface); dynamic: (T, H, W)
+    bool, relative_motion > threshold; target_frames: (T, K) int64, the frames each frame was compared with."""
+
+    relative_motion: np.ndarray
+    dynamic: np.ndarray
+    threshold: float
+    target_frames: np.ndarray
+
+
+@dataclass
 class Cameras:
     """intrinsics: (T, 3, 3) pixels, for the input video's size; cam_to_world: (T, 4, 4), where the
     world is the camera of ``reference_frame`` (identity there)."""

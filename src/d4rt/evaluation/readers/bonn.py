@@ -24,7 +24,7 @@ import numpy as np
 from d4rt.errors import UserError
 from d4rt.evaluation.readers._files import intrinsics_matrix, read_rgb, read_uint16_png, select_frames, sorted_files
 from d4rt.evaluation.sequence import EvalSequence
-from d4rt.geometry.transforms import quaternion_to_rotation, rigid
+from d4rt.io.trajectory import nearest_poses, read_tum_trajectory
 
 DEPTH_UNITS_PER_METRE = 5000.0
 INTRINSICS = (542.822841, 542.576870, 315.593520, 237.756098)
@@ -54,27 +54,3 @@ def read_sequence(root: Path, name: str, frames: slice | None = None) -> EvalSeq
                                      np.array([float(r.stem) for r, _ in pairs]))
     return EvalSequence(name, rgb, depth, intrinsics_matrix(*INTRINSICS, len(pairs)), cam_to_world,
                         frame_names=[r.stem for r, _ in pairs])
-
-
-def read_tum_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """A TUM trajectory file -> (timestamps (N,), camera-to-world poses (N, 4, 4))."""
-    try:
-        rows = [line.split() for line in path.read_text().splitlines() if line.strip() and not line.startswith("#")]
-        values = np.array(rows, dtype=np.float64)
-    except (OSError, ValueError) as err:
-        raise UserError(f"cannot read TUM trajectory {path}: {err}") from None
-    if values.ndim != 2 or values.shape[1] != 8:
-        raise UserError(f"{path}: TUM lines need 8 numbers (timestamp tx ty tz qx qy qz qw)")
-    return values[:, 0], rigid(quaternion_to_rotation(values[:, 4:]), values[:, 1:4])
-
-
-def nearest_poses(trajectory: tuple[np.ndarray, np.ndarray], timestamps: np.ndarray,
-                  max_difference: float = 0.02) -> np.ndarray:
-    """The pose nearest in time to each timestamp (TUM's association rule, at most 20 ms apart)."""
-    stamps, poses = trajectory
-    index = np.abs(stamps[None, :] - timestamps[:, None]).argmin(1)
-    gap = np.abs(stamps[index] - timestamps)
-    if (gap > max_difference).any():
-        worst = int(gap.argmax())
-        raise UserError(f"no ground-truth pose within {max_difference} s of frame time {timestamps[worst]:.4f}")
-    return poses[index]
