@@ -235,6 +235,7 @@ def test_bad_options_and_debug(tmp_path, clip, cli):
                             (["--stride", "0"], "stride must be >= 1"),
                             (["--threads", "0"], "--threads must be >= 1"),
                             (["--motion-threshold", "0"], "motion threshold must be a finite number > 0"),
+                            (["--chunk-size", "0"], "--chunk-size must be >= 1"),
                             (["--motion-resolution", "tiny"], "--motion-resolution must be"),
                             (["--device", "cuda:7"] if not torch.cuda.is_available() else ["--device", "nonsense"],
                              "--device")):
@@ -264,7 +265,7 @@ def test_known_poses_and_scale(tmp_path, clip, checkpoint, cli):
     with np.load(tmp_path / "known" / "reconstruction.npz") as npz:
         np.testing.assert_allclose(npz["cam_to_world"], known, atol=1e-4)
         np.testing.assert_allclose(npz["depth"], 3.0 * depth, rtol=1e-4)
-    r = cli(*base, "-o", tmp_path / "scaled", "--scale", "0.5")
+    r = cli(*base, "-o", tmp_path / "scaled", "--scale", "0.5", "--chunk-size", "7")  # small decoder batches
     assert r.returncode == 0, r.stderr
     with np.load(tmp_path / "scaled" / "reconstruction.npz") as npz:
         np.testing.assert_allclose(npz["depth"], 0.5 * depth, rtol=1e-5)

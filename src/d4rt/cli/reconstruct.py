@@ -63,6 +63,10 @@ def register(subparsers) -> None:
     model.add_argument("--threads", type=int, default=None, metavar="N",
                        help="CPU threads for torch (default: torch's choice, one per core; queries are decoded in "
                             "chunks of 4,096, where more threads pay: docs/performance.md)")
+    model.add_argument("--chunk-size", type=int, default=None, metavar="N",
+                       help="queries the decoder answers at once (default: the model's query_chunk_size, 4,096 for "
+                            "the bundled one): lower it to bound memory on a small GPU, raise it on a large one; "
+                            "the answers do not depend on it. --window bounds the encoder's memory")
     outputs = p.add_argument_group("outputs")
     outputs.add_argument("--intrinsics", metavar="FX,FY,CX,CY", default=None,
                          help="known intrinsics in pixels of the input frames, OpenCV convention (top-left pixel "
@@ -187,13 +191,18 @@ def has_bundled_model() -> bool:
     return (bundled_model_dir() / "model.safetensors").is_file()
 
 
-def load_model(checkpoint: str | None, device):
+def load_model(checkpoint: str | None, device, chunk_size: int | None = None):
+    """The model of ``checkpoint`` (None: the bundled one) on ``device``, answering ``chunk_size`` queries at a time
+    (None: its config's query_chunk_size)."""
     from d4rt.model import D4RT
 
     if checkpoint is None and not has_bundled_model():
         raise UserError("no trained model ships with this version of d4rt yet: pass --checkpoint DIR (written by "
                         "D4RT.save_pretrained), or run `d4rt demo` to see every output on a synthetic clip")
-    return D4RT.from_pretrained(checkpoint, device=device)
+    model = D4RT.from_pretrained(checkpoint, device=device)
+    if chunk_size is not None:
+        model.config = model.config.replace(query_chunk_size=chunk_size)
+    return model
 
 
 LARGE_QUERIES = 20_000_000  # above this many decoded queries, a one-line notice before the work starts
@@ -263,6 +272,8 @@ def run(args) -> int:
     selection = FrameRange(args.start, args.end, args.stride, args.max_frames)
     if args.threads is not None and args.threads < 1:
         raise UserError(f"--threads must be >= 1, got {args.threads}")
+    if args.chunk_size is not None and args.chunk_size < 1:
+        raise UserError(f"--chunk-size must be >= 1, got {args.chunk_size}")
     save_options = dict(resolution=resolution, intrinsics=intrinsics, camera=args.camera,
                         square_pixels=not args.non_square_pixels, min_confidence=args.min_confidence,
                         point_stride=args.point_stride, points_from=args.points_from, track_grid=args.tracks,
@@ -285,7 +296,7 @@ def run(args) -> int:
     bf16 = args.dtype == "bf16" or (args.dtype == "auto" and native_bf16(device))
     with spool_folder(out_dir) as spool:  # the frames wait on disk and are read window by window
         frames = load_frames(args.input[0], selection, progress=True, spool=spool)
-        model = load_model(args.checkpoint, device)
+        model = load_model(args.checkpoint, device, args.chunk_size)
         reconstruct_frames(model, frames, out_dir, args, formats, save_options, bf16, overwrite=args.overwrite)
     return 0
 
@@ -306,7 +317,7 @@ def run_many(args, selection, formats, save_options) -> int:
     context = DistributedContext.from_environment(args.device)
     try:
         bf16 = args.dtype == "bf16" or (args.dtype == "auto" and native_bf16(context.device))
-        model = load_model(args.checkpoint, context.device)
+        model = load_model(args.checkpoint, context.device, args.chunk_size)
 
         def reconstruct_one(source: Path, target: Path) -> int:
             with spool_folder(target) as spool:
