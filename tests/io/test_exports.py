@@ -100,6 +100,9 @@ def test_motion_masks_files_match_the_oracle_and_are_left_out_of_all(clip, saved
     assert "motion-masks" not in formats.parse_formats("all") and "dynamic" not in npz
     truth = clip.reconstruction().motion_masks()
     assert truth.dynamic.any() and not truth.dynamic.all()  # the premise: some pixels move, some do not
+    # The cloud's static / dynamic split: each point flagged by the mask under its pixel (masks at the input's size).
+    f, (x, y) = npz["point_frames"], npz["point_pixels"].T
+    np.testing.assert_array_equal(npz["point_dynamic"], truth.dynamic[f, y, x])
     with np.load(out / "motion" / "motion.npz") as motion:
         np.testing.assert_array_equal(motion["dynamic"], truth.dynamic)
         np.testing.assert_array_equal(motion["relative_motion"], truth.relative_motion)

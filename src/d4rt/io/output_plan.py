@@ -162,11 +162,27 @@ def compute_outputs(rec, formats=("npz",), *, resolution=None, intrinsics=None, 
             out.motion = {"dynamic": masks.dynamic, "relative_motion": masks.relative_motion,
                           "threshold": np.float64(masks.threshold), "target_frames": masks.target_frames,
                           "resolution": np.array(motion_size)}
+            if out.points is not None:
+                out.point_dynamic = points_on_masks(out, masks.dynamic)
     if scale is not None:
         out.alignment = np.diag([scale, scale, scale, 1.0])
     if out.alignment is not None:
         carry_outputs(out, out.alignment)
     return out
+
+
+def points_on_masks(out: ReconstructionOutputs, dynamic: np.ndarray) -> np.ndarray:
+    """(M,) bool: whether each point of the cloud lies on a moving surface, read from the masks ``dynamic``
+    (T, h, w) at the mask cell under its input pixel (the static / dynamic split of the cloud)."""
+    t, mask_h, mask_w = dynamic.shape
+    height, width = out.rgb.shape[1:3]
+    flags = np.zeros(len(out.points), dtype=bool)
+    for a, b in ranges(len(out.points), POINT_BLOCK_PIXELS):
+        x, y = np.asarray(out.point_pixels[a:b], dtype=np.float64).T
+        cells_x = ((x + 0.5) * mask_w / width).astype(np.int64)  # a pixel centre's cell: always inside the grid
+        cells_y = ((y + 0.5) * mask_h / height).astype(np.int64)
+        flags[a:b] = dynamic[np.asarray(out.point_frames[a:b]), cells_y, cells_x]
+    return flags
 
 
 def carry_outputs(out: ReconstructionOutputs, sim: np.ndarray) -> None:

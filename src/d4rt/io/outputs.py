@@ -49,6 +49,7 @@ class ReconstructionOutputs:
     track_visibility: np.ndarray | None = None
     track_confidence: np.ndarray | None = None
     track_uv: np.ndarray | None = None
+    point_dynamic: np.ndarray | None = None  # (M,) bool: on a moving surface (only with the motion-masks output)
     point_offsets: np.ndarray | None = None  # (T + 1,): frame k's points are [offsets[k], offsets[k + 1]) (frame order)
     dense: dict | None = None  # the arrays of dense_tracks.npz (written by that format alone)
     motion: dict | None = None  # the arrays of motion/motion.npz (written by that format alone)
