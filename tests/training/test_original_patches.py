@@ -4,6 +4,8 @@ encoder's frames; clips of different sizes are padded into one batch and each ke
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -166,3 +168,17 @@ def test_trained_weights_can_go_on_with_original_patches(tmp_path, clip_dir):
     after = D4RT.from_pretrained(tmp_path / "b")
     assert after.config == start.config.replace(rgb_patch_source="original")
     assert all(torch.allclose(v, after.state_dict()[k], atol=1e-9) for k, v in start.state_dict().items())
+
+
+def test_a_run_from_a_checkpoint_keeps_its_calibrated_motion_threshold(tmp_path, clip_dir):
+    """The motion-mask threshold is calibrated after training, not learned: a run from a checkpoint that carries one
+    (the shipped weights carry 0.2) keeps it, so the shipped weights stay a valid start; a config may set its own."""
+    train(TrainConfig.from_dict(fast_config(clip_dir, run={"max_steps": 1, "checkpoint_every": 1})), tmp_path / "a")
+    config_path = tmp_path / "a" / "config.json"
+    config_path.write_text(json.dumps({**json.loads(config_path.read_text()), "motion_threshold": 0.2}))
+    for run, overrides, expected in (("b", {}, 0.2), ("c", {"motion_threshold": 0.1}, 0.1)):
+        config = fast_config(clip_dir, model={"preset": "tiny", "init_from": str(tmp_path / "a"),
+                                              "overrides": {"max_frames": 4, **overrides}},
+                             run={"max_steps": 1, "checkpoint_every": 1})
+        train(TrainConfig.from_dict(config), tmp_path / run)
+        assert D4RT.from_pretrained(tmp_path / run).config.motion_threshold == expected

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from d4rt.errors import UserError
@@ -93,7 +95,9 @@ def test_the_grown_model_configs_fit_the_grown_shipped_model_and_speed_exactly_t
 
     config = TrainConfig.load(CONFIGS / f"{name}.yaml")
     grown = deepen(D4RT.from_pretrained(), encoder_depth=10, seed=128)
-    assert config.validate() == grown.config
+    # The motion-mask threshold is an inference setting calibrated on the shipped weights after these stages ran
+    # (tools/motion_mask_probe.py); it does not shape the model, so the comparison leaves it out.
+    assert dataclasses.replace(config.validate(), motion_threshold=grown.config.motion_threshold) == grown.config
     added = {i for i, block in enumerate(grown.encoder.blocks)
              if not block.attn.proj.weight.any() and not block.mlp.fc2.weight.any()}
     assert added == {2, 3, 6, 7}

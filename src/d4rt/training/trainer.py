@@ -127,21 +127,26 @@ class Trainer:
     def _build_model(self) -> torch.nn.Module:
         spec, run = self.config.model, self.config.run
         torch.manual_seed(run.seed)  # the same initial weights on every rank
+        pretrained = D4RT.from_pretrained(spec.init_from) if spec.init_from is not None else None
+        if pretrained is not None and "motion_threshold" not in spec.overrides:
+            # The motion-mask threshold is calibrated on trained weights (tools/motion_mask_probe.py), not learned:
+            # a run from a checkpoint keeps the checkpoint's unless the config sets its own.
+            self.model_config = self.model_config.replace(motion_threshold=pretrained.config.motion_threshold)
         model = D4RT(self.model_config)
-        if spec.init_from is not None:
-            pretrained = D4RT.from_pretrained(spec.init_from)
+        if pretrained is not None:
             state = pretrained.state_dict()
             had_residual, wants_residual = pretrained.config.uv_residual, self.model_config.uv_residual
             # The differences allowed: adding a part of ADDABLE_PARTS (the relative-pose head, the dense depth head),
             # turning the 2D head residual and restricting more heads to the target frame (never undoing any). The
-            # camera pairing and flip averaging are inference defaults, and the frames RGB patches are cut from an
-            # input choice, not architecture: the new model keeps its own.
+            # camera pairing, flip averaging and motion threshold are inference defaults, and the frames RGB patches
+            # are cut from an input choice, not architecture: the new model keeps its own.
             wanted = {flag: getattr(self.model_config, flag) for flag in ADDABLE_PARTS}
             dropped = any(getattr(pretrained.config, flag) > wants for flag, wants in wanted.items())
             frame_heads = self.model_config.target_frame_heads
             same = pretrained.config.replace(uv_residual=wants_residual, pose_pairs=self.model_config.pose_pairs,
                                              flip_average=self.model_config.flip_average,
                                              rgb_patch_source=self.model_config.rgb_patch_source,
+                                             motion_threshold=self.model_config.motion_threshold,
                                              target_frame_heads=frame_heads, **wanted)
             if (same != self.model_config or dropped or had_residual > wants_residual
                     or pretrained.config.target_frame_heads > frame_heads):
