@@ -40,3 +40,19 @@ def write_sintel(root, seq, frames):
             f.write(tag.tobytes() + k.tobytes() + world_to_cam.tobytes())
         write_png(root / "training/final" / seq / f"{stem}.png", random_rgb())
     return depths, k, cam_to_world
+
+
+def write_re10k(root, seq, frames, h=H, w=W):
+    """A RealEstate10K camera file (URL line, then timestamp, normalised fx fy cx cy, two zeros, 3x4
+    world-to-camera) and its extracted frames named by timestamp. Returns (timestamps, K (3, 3) in pixels,
+    cam_to_world (frames, 4, 4))."""
+    cam_to_world = random_poses(frames)
+    stamps = 1_000_000 + 33_367 * np.arange(frames)
+    k = np.array([[0.9 * w, 0, 0.5 * w - 0.5], [0, 1.6 * h, 0.5 * h - 0.5], [0, 0, 1]])
+    lines = [f"https://www.youtube.com/watch?v={seq}"]
+    for stamp, pose in zip(stamps, cam_to_world):
+        world_to_cam = np.linalg.inv(pose)[:3].reshape(-1)
+        lines.append(" ".join([str(stamp), "0.9", "1.6", "0.5", "0.5", "0", "0", *(f"{v:.17g}" for v in world_to_cam)]))
+        write_png(root / seq / f"{stamp}.png", random_rgb(h, w))
+    (root / f"{seq}.txt").write_text("\n".join(lines) + "\n")
+    return stamps, k, cam_to_world

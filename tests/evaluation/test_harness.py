@@ -18,7 +18,7 @@ from d4rt.evaluation.metrics import pose_metrics
 from d4rt.evaluation.predictions import Prediction
 from d4rt.model import D4RT
 from d4rt.synthetic import render_clip
-from tests.evaluation.layouts import write_sintel
+from tests.evaluation.layouts import write_re10k, write_sintel
 
 
 @pytest.fixture(scope="module")
@@ -78,6 +78,19 @@ def test_a_dataset_in_its_published_layout_through_the_harness(tmp_path):
     assert agg["apd3d"] is None  # Sintel has no tracks
     with pytest.raises(UserError, match="lacks 12 sequence"):
         get_benchmark("sintel").sequence_names(tmp_path)
+
+
+def test_re10k_pose_auc_through_the_harness(tmp_path):
+    """RealEstate10K camera files and frames -> the re10k benchmark -> pose metrics only, perfect for the oracle."""
+    for seq in ("0a1b2c", "ffee00"):
+        write_re10k(tmp_path, seq, 5)
+    benchmark = get_benchmark("re10k")
+    assert benchmark.sequence_names(tmp_path) == ["0a1b2c", "ffee00"]
+    oracle, still = run_benchmark(benchmark, [OraclePredictor(), make_baseline("static-camera")], tmp_path,
+                                  progress=False)
+    assert oracle.aggregate["auc@30"] == 1.0 and oracle.aggregate["ate"] < 1e-9
+    assert not any(k.startswith("abs_rel") for k in oracle.aggregate)  # a pose benchmark: no depth columns
+    assert still.aggregate["auc@30"] < 1.0
 
 
 @pytest.fixture(scope="module")

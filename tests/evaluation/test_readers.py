@@ -17,7 +17,7 @@ from d4rt.evaluation.readers import detect_format, list_sequences, read_sequence
 from d4rt.geometry.camera import project
 from d4rt.geometry.transforms import apply_transform, invert_rigid
 from d4rt.synthetic import render_clip
-from tests.evaluation.layouts import H, RNG, W, random_poses, random_rgb, write_png, write_sintel
+from tests.evaluation.layouts import H, RNG, W, random_poses, random_rgb, write_png, write_re10k, write_sintel
 
 
 # ------------------------------------------------------------------------------------------ Sintel
@@ -202,3 +202,25 @@ def test_unknown_layouts_and_formats(tmp_path):
         list_sequences("nyu", tmp_path)
     with pytest.raises(UserError, match="not found"):
         list_sequences("sintel", tmp_path / "missing")
+
+
+def test_re10k(tmp_path):
+    root = tmp_path / "RealEstate10K" / "test"
+    stamps, k, cam_to_world = write_re10k(root, "0a1b2c", 30)
+    write_re10k(root, "ffee00", 3)
+    (root / "ffee00" / f"{1_000_000 + 33_367 * 2}.png").unlink()  # a frame not extracted
+    assert detect_format(tmp_path / "RealEstate10K") == "re10k"
+    assert list_sequences("re10k", tmp_path / "RealEstate10K") == ["0a1b2c", "ffee00"]
+    seq = read_sequence("re10k", root, "0a1b2c")
+    assert seq.depth is None and seq.num_frames == 30 and seq.frame_names[0] == str(stamps[0])
+    np.testing.assert_allclose(seq.intrinsics, np.broadcast_to(k, (30, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(seq.cam_to_world, cam_to_world, atol=1e-9)
+    thinned = read_sequence("re10k", root, "0a1b2c", max_frames=24)  # evenly, first and last kept
+    assert thinned.num_frames == 24 and thinned.frame_names[0] == str(stamps[0])
+    assert thinned.frame_names[-1] == str(stamps[-1])
+    short = read_sequence("re10k", root, "ffee00")
+    assert short.num_frames == 2 and short.notes == ["skipped 1 camera lines without an extracted frame"]
+    (root / "bad.txt").write_text("url\n1 2 3\n")
+    (root / "bad").mkdir()
+    with pytest.raises(UserError, match="need 19 numbers"):
+        read_sequence("re10k", root, "bad")

@@ -81,6 +81,8 @@ BENCHMARKS = {b.name: b for b in (
     Benchmark("kitti", "KITTI depth selection (validation), one sequence per drive", "kitti", ("depth",)),
     Benchmark("scannet", "ScanNet v2 scenes, every 3rd frame, 90 frames", "scannet",
               ("depth", "pose", "point_cloud"), read_options=(("stride", 3), ("max_frames", 90))),
+    Benchmark("re10k", "RealEstate10K camera poses (pose AUC@30), at most 24 frames per sequence", "re10k", ("pose",),
+              read_options=(("max_frames", 24),)),
     Benchmark("tapvid3d", "TAPVid-3D (adt / drivetrack / pstudio), camera-frame 3D tracks", "tapvid3d",
               ("tracks", "world_tracks"), group_by_subset=True),
 )}

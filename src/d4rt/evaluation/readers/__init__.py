@@ -13,7 +13,7 @@ from types import ModuleType
 import numpy as np
 
 from d4rt.errors import UserError
-from d4rt.evaluation.readers import bonn, kitti, scannet, sintel, synthetic, tapvid3d
+from d4rt.evaluation.readers import bonn, kitti, re10k, scannet, sintel, synthetic, tapvid3d
 from d4rt.evaluation.sequence import EvalSequence
 
 FORMATS: dict[str, ModuleType] = {
@@ -22,6 +22,7 @@ FORMATS: dict[str, ModuleType] = {
     "kitti": kitti,
     "scannet": scannet,
     "tapvid3d": tapvid3d,
+    "re10k": re10k,
     "synthetic": synthetic,
 }
 
@@ -61,6 +62,8 @@ def detect_format(root: str | Path) -> str:
                                                          root / "depth_selection" / kitti.SELECTION)
                               for d in ("groundtruth_depth", "groundtruth_depth_gathered"))),
         ("scannet", lambda: any((p / "pose").is_dir() for p in root.iterdir())),
+        ("re10k", lambda: any((c / p.stem).is_dir() for c in (root, root / "test", root / "train") if c.is_dir()
+                              for p in c.glob("*.txt"))),
     )
     for name, matches in layouts:
         if matches():
