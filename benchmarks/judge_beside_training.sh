@@ -5,9 +5,10 @@
 # under the same name, and the judge skips the steps whose files exist.
 #   pre     the start's measurements the judge needs (held-out camera probe, held-out focal, the gate set's focal and
 #           depth), made while the training runs (the depth probe takes about 26 minutes on one core);
-#   launch  waits for "trained to step STEPS" in RUN_LOG, applies the stop rule of stages 104 on (mean logged
-#           confidence over steps 201-400 of RUN_DIR/metrics.jsonl at least 0.6, else no judge), then runs the judge
-#           command given after "--" (the one in the config's header);
+#   launch  waits for "trained to step STEPS" in every log of RUN_LOG, applies the stop rule of stages 104 on to
+#           every run of RUN_DIR (mean logged confidence over steps 201-400 of its metrics.jsonl at least 0.6, else no
+#           judge), then runs the judge command given after "--" (the one in the config's header). RUN_LOG and
+#           RUN_DIR may each name several, space-separated, in the same order (a soup's sibling legs);
 #   side    once the judge has written avg-1, probes it on the second core; once the judge has chosen its candidate,
 #           begins the benchmark eval with the judge's own arguments (d4rt eval --resume), and stops it at the gate
 #           set's verdict so that the judge's own eval, if it comes, resumes from its rows.
@@ -50,16 +51,22 @@ launch)
   : "${RUN_LOG:?}" "${RUN_DIR:?}" "${STEPS:?}"
   [ "${2:-}" = -- ] && [ $# -gt 2 ] || { echo "usage: judge_beside_training.sh launch -- JUDGE COMMAND" >&2; exit 2; }
   shift 2
-  until grep -q "trained to step $STEPS" "$RUN_LOG" 2>/dev/null; do sleep 20; done
-  python - "$RUN_DIR/metrics.jsonl" <<'P' > $J/stop-rule.txt || { echo "stop rule: stop $(date -u)" >> $J/launch.log; exit 0; }
+  read -r -a logs <<< "$RUN_LOG"; read -r -a dirs <<< "$RUN_DIR"
+  [ ${#logs[@]} = ${#dirs[@]} ] || { echo "RUN_LOG names ${#logs[@]} logs and RUN_DIR ${#dirs[@]} runs" >&2; exit 2; }
+  for log in "${logs[@]}"; do until grep -q "trained to step $STEPS" "$log" 2>/dev/null; do sleep 20; done; done
+  python - "${dirs[@]}" <<'P' > $J/stop-rule.txt || { echo "stop rule: stop $(date -u)" >> $J/launch.log; exit 0; }
 import json, sys
-rows = [json.loads(line) for line in open(sys.argv[1])]
-c = [r["loss/confidence_mean"] for r in rows if 201 <= r["step"] <= 400 and "loss/confidence_mean" in r]
-if not c:
-    sys.exit(f"no loss/confidence_mean logged over steps 201-400 in {sys.argv[1]}: stop rule cannot be read")
-mean = sum(c) / len(c)
-print(f"mean confidence over steps 201-400: {mean:.3f} ({len(c)} logged steps) -> {'judge' if mean >= 0.6 else 'stop'}")
-sys.exit(0 if mean >= 0.6 else 1)
+stop = False
+for run in sys.argv[1:]:
+    rows = [json.loads(line) for line in open(f"{run}/metrics.jsonl")]
+    c = [r["loss/confidence_mean"] for r in rows if 201 <= r["step"] <= 400 and "loss/confidence_mean" in r]
+    if not c:
+        sys.exit(f"no loss/confidence_mean logged over steps 201-400 in {run}/metrics.jsonl: stop rule cannot be read")
+    mean = sum(c) / len(c)
+    stop |= mean < 0.6
+    print(f"{run}: mean confidence over steps 201-400: {mean:.3f} ({len(c)} logged steps) -> "
+          f"{'judge' if mean >= 0.6 else 'stop'}")
+sys.exit(1 if stop else 0)
 P
   echo "judge from $(date -u)" >> $J/launch.log
   status=0
