@@ -182,3 +182,18 @@ def test_a_run_from_a_checkpoint_keeps_its_calibrated_motion_threshold(tmp_path,
                              run={"max_steps": 1, "checkpoint_every": 1})
         train(TrainConfig.from_dict(config), tmp_path / run)
         assert D4RT.from_pretrained(tmp_path / run).config.motion_threshold == expected
+
+
+def test_a_part_added_through_init_from_gets_the_seeded_fresh_weights(tmp_path, clip_dir):
+    """Loading the checkpoint must not move the seeded random stream: a part it lacks (here the dense depth head)
+    starts from exactly the weights a fresh model of the same seed has (runs stay reproducible from their config)."""
+    train(TrainConfig.from_dict(fast_config(clip_dir, run={"max_steps": 1, "checkpoint_every": 1})), tmp_path / "a")
+    overrides = {"max_frames": 4, "dense_depth_head": True}
+    config = TrainConfig.from_dict(fast_config(
+        clip_dir, model={"preset": "tiny", "init_from": str(tmp_path / "a"), "overrides": overrides},
+        run={"max_steps": 1, "checkpoint_every": 1}, optim={"lr": 1e-12, "min_lr": 1e-12, "warmup_steps": 0}))
+    train(config, tmp_path / "b")
+    torch.manual_seed(config.run.seed)
+    fresh = D4RT(D4RTConfig.preset("tiny", **overrides)).dense_depth.state_dict()
+    after = D4RT.from_pretrained(tmp_path / "b").dense_depth.state_dict()
+    assert all(torch.allclose(v, after[k], atol=1e-9) for k, v in fresh.items())

@@ -127,7 +127,10 @@ class Trainer:
     def _build_model(self) -> torch.nn.Module:
         spec, run = self.config.model, self.config.run
         torch.manual_seed(run.seed)  # the same initial weights on every rank
-        pretrained = D4RT.from_pretrained(spec.init_from) if spec.init_from is not None else None
+        pretrained = None
+        if spec.init_from is not None:
+            with torch.random.fork_rng(devices=[]):  # building it must not move the seeded stream the new model draws
+                pretrained = D4RT.from_pretrained(spec.init_from)
         if pretrained is not None and "motion_threshold" not in spec.overrides:
             # The motion-mask threshold is calibrated on trained weights (tools/motion_mask_probe.py), not learned:
             # a run from a checkpoint keeps the checkpoint's unless the config sets its own.
@@ -139,7 +142,8 @@ class Trainer:
             # The differences allowed: adding a part of ADDABLE_PARTS (the relative-pose head, the dense depth head),
             # turning the 2D head residual and restricting more heads to the target frame (never undoing any). The
             # camera pairing, flip averaging and motion threshold are inference defaults, and the frames RGB patches
-            # are cut from an input choice, not architecture: the new model keeps its own.
+            # are cut from an input choice, not architecture: the new model keeps its own (the motion threshold
+            # came from the checkpoint above unless the config sets one).
             wanted = {flag: getattr(self.model_config, flag) for flag in ADDABLE_PARTS}
             dropped = any(getattr(pretrained.config, flag) > wants for flag, wants in wanted.items())
             frame_heads = self.model_config.target_frame_heads
