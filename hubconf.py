@@ -1,11 +1,12 @@
 """torch.hub entry points (as CoTracker offers them): one line loads the model.
 
     model = torch.hub.load("path/to/a/d4rt/clone", "d4rt", source="local")   # offline, from a clone
-    model = torch.hub.load("path/to/a/d4rt/clone", "d4rt", checkpoint="runs/my-run")  # weights of your own
+    model = torch.hub.load("path/to/a/d4rt/clone", "d4rt", source="local", checkpoint="runs/my-run")  # your own
     rec = model.reconstruct(video)   # video: (T, H, W, 3) uint8 or float in [0, 1]
 
-The weights are the ones the clone bundles (src/d4rt/assets/d4rt-tiny): nothing is downloaded. Without an installed
-d4rt the clone's src/ is used, so its dependencies (below) must be installed.
+The weights are the ones the clone bundles (src/d4rt/assets/d4rt-tiny): nothing is downloaded. The code is the
+clone's own (its src/ goes first on sys.path, unless d4rt was already imported in this process), so the clone's
+dependencies (below) must be installed.
 """
 
 from __future__ import annotations

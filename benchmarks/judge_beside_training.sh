@@ -13,8 +13,8 @@
 #           begins the benchmark eval with the judge's own arguments (d4rt eval --resume), and stops it at the gate
 #           set's verdict so that the judge's own eval, if it comes, resumes from its rows.
 # Environment: J (the judge folder, holding start/, a copy of the weights shipped when it is judged) and GATE_SEED;
-# launch also RUN_LOG, RUN_DIR and STEPS. Run from the repository root, each part as its own background job, e.g. for
-# stage 122 (the launch's judge command copied from configs/ship-tiny-cpu-stage122-aligned-in-view-second-leg.yaml):
+# launch also RUN_LOG, RUN_DIR and STEPS (and POLL, the seconds between looks at the logs, default 20). Run from the
+# repository root, each part as its own background job, e.g. for stage 122 (the launch's judge command copied from configs/ship-tiny-cpu-stage122-aligned-in-view-second-leg.yaml):
 #   export J=/work/judge122 GATE_SEED=11122000 RUN_LOG=/work/runs/stage122.log RUN_DIR=/work/runs/ship-tiny-stage122
 #   export STEPS=1600 OMP_NUM_THREADS=1
 #   mkdir -p $J && cp -r src/d4rt/assets/d4rt-tiny $J/start && cp benchmarks/judge_guarded_stage.sh $J/
@@ -52,9 +52,12 @@ launch)
   [ "${2:-}" = -- ] && [ $# -gt 2 ] || { echo "usage: judge_beside_training.sh launch -- JUDGE COMMAND" >&2; exit 2; }
   shift 2
   read -r -a logs <<< "$RUN_LOG"; read -r -a dirs <<< "$RUN_DIR"
-  [ ${#logs[@]} = ${#dirs[@]} ] || { echo "RUN_LOG names ${#logs[@]} logs and RUN_DIR ${#dirs[@]} runs" >&2; exit 2; }
-  for log in "${logs[@]}"; do until grep -q "trained to step $STEPS" "$log" 2>/dev/null; do sleep 20; done; done
-  python - "${dirs[@]}" <<'P' > $J/stop-rule.txt || { echo "stop rule: stop $(date -u)" >> $J/launch.log; exit 0; }
+  [ ${#logs[@]} -gt 0 ] && [ ${#logs[@]} = ${#dirs[@]} ] || {
+    echo "RUN_LOG names ${#logs[@]} logs and RUN_DIR ${#dirs[@]} runs: name each leg's log and run, in one order" >&2
+    exit 2; }
+  for log in "${logs[@]}"; do until grep -q "trained to step $STEPS" "$log" 2>/dev/null; do sleep ${POLL:-20}; done; done
+  rule=0
+  python - "${dirs[@]}" <<'P' > $J/stop-rule.txt 2>> $J/launch.log || rule=$?
 import json, sys
 stop = False
 for run in sys.argv[1:]:
@@ -66,8 +69,10 @@ for run in sys.argv[1:]:
     stop |= mean < 0.6
     print(f"{run}: mean confidence over steps 201-400: {mean:.3f} ({len(c)} logged steps) -> "
           f"{'judge' if mean >= 0.6 else 'stop'}")
-sys.exit(1 if stop else 0)
+sys.exit(4 if stop else 0)  # 4: the rule stops; any other failure is an error (its message in launch.log)
 P
+  [ $rule = 4 ] && { echo "stop rule: stop $(date -u)" >> $J/launch.log; exit 0; }
+  [ $rule = 0 ] || { echo "stop rule could not be read (above): no judge $(date -u)" >> $J/launch.log; exit 2; }
   echo "judge from $(date -u)" >> $J/launch.log
   status=0
   "$@" > $J/judge.out 2>&1 || status=$?

@@ -224,3 +224,10 @@ def test_re10k(tmp_path):
     (root / "bad").mkdir()
     with pytest.raises(UserError, match="need 19 numbers"):
         read_sequence("re10k", root, "bad")
+    (root / "nofolder.txt").write_text((root / "ffee00.txt").read_text())
+    with pytest.raises(UserError, match="no folder of extracted frames"):
+        read_sequence("re10k", root, "nofolder")
+    odd = root / "0a1b2c" / f"{stamps[1]}.png"
+    write_png(odd, random_rgb(H + 2, W))
+    with pytest.raises(UserError, match=f"frame {odd.name} is {W}x{H + 2}"):
+        read_sequence("re10k", root, "0a1b2c")

@@ -65,6 +65,8 @@ def read_sequence(root: Path, name: str, max_frames: int | None = None) -> EvalS
     if max_frames is not None and max_frames < 2:
         raise UserError(f"max_frames must be at least 2 (poses are compared in pairs), got {max_frames}")
     base = find_root(root)
+    if not (base / name).is_dir():
+        raise UserError(f"RealEstate10K {name}: no folder of extracted frames {base / name} beside its camera file")
     stamps, normalised, world_to_camera = read_cameras(base / f"{name}.txt")
     images = {p.stem: p for p in (base / name).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
     present = [i for i, s in enumerate(stamps) if str(s) in images]
@@ -75,7 +77,13 @@ def read_sequence(root: Path, name: str, max_frames: int | None = None) -> EvalS
                         "(named <timestamp>.png or .jpg); at least 2 are needed")
     if max_frames is not None and len(present) > max_frames:
         present = [present[int(k)] for k in np.round(np.linspace(0, len(present) - 1, max_frames))]
-    rgb = np.stack([read_rgb(images[str(stamps[i])]) for i in present])
+    frames = [read_rgb(images[str(stamps[i])]) for i in present]
+    for i, frame in zip(present, frames):
+        if frame.shape != frames[0].shape:
+            raise UserError(f"RealEstate10K {name}: frame {images[str(stamps[i])].name} is {frame.shape[1]}x"
+                            f"{frame.shape[0]}, the first {frames[0].shape[1]}x{frames[0].shape[0]}: extract every "
+                            "frame at one size")
+    rgb = np.stack(frames)
     h, w = rgb.shape[1:3]
     fx, fy, cx, cy = normalised[present].T
     intrinsics = np.zeros((len(present), 3, 3))
