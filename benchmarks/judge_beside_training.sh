@@ -14,7 +14,8 @@
 #           set's verdict so that the judge's own eval, if it comes, resumes from its rows.
 # Environment: J (the judge folder, holding start/, a copy of the weights shipped when it is judged) and GATE_SEED;
 # launch also RUN_LOG, RUN_DIR and STEPS (and POLL, the seconds between looks at the logs, default 20). Run from the
-# repository root, each part as its own background job, e.g. for stage 122 (the launch's judge command copied from configs/ship-tiny-cpu-stage122-aligned-in-view-second-leg.yaml):
+# repository root, each part as its own background job, e.g. for stage 122 (the launch's judge command copied from
+# configs/ship-tiny-cpu-stage122-aligned-in-view-second-leg.yaml):
 #   export J=/work/judge122 GATE_SEED=11122000 RUN_LOG=/work/runs/stage122.log RUN_DIR=/work/runs/ship-tiny-stage122
 #   export STEPS=1600 OMP_NUM_THREADS=1
 #   mkdir -p $J && cp -r src/d4rt/assets/d4rt-tiny $J/start && cp benchmarks/judge_guarded_stage.sh $J/
