@@ -62,8 +62,7 @@ def detect_format(root: str | Path) -> str:
                                                          root / "depth_selection" / kitti.SELECTION)
                               for d in ("groundtruth_depth", "groundtruth_depth_gathered"))),
         ("scannet", lambda: any((p / "pose").is_dir() for p in root.iterdir())),
-        ("re10k", lambda: any((c / p.stem).is_dir() for c in (root, root / "test", root / "train") if c.is_dir()
-                              for p in c.glob("*.txt"))),
+        ("re10k", lambda: re10k.sequence_folder(root) is not None),
     )
     for name, matches in layouts:
         if matches():

@@ -31,12 +31,20 @@ from d4rt.geometry.transforms import invert_rigid
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
-def find_root(root: Path) -> Path:
-    """ROOT, or its test/ (then train/) folder, whichever holds camera files with frame folders."""
+def sequence_folder(root: Path) -> Path | None:
+    """ROOT, or its test/ (then train/) folder, whichever holds camera files with frame folders; None if none does."""
     for candidate in (root, root / "test", root / "train"):
         if candidate.is_dir() and any((candidate / p.stem).is_dir() for p in candidate.glob("*.txt")):
             return candidate
-    raise UserError(f"{root} holds no RealEstate10K sequence (<seq>.txt beside a <seq>/ folder of frames)")
+    return None
+
+
+def find_root(root: Path) -> Path:
+    """:func:`sequence_folder`, or a one-line error naming the expected layout."""
+    base = sequence_folder(root)
+    if base is None:
+        raise UserError(f"{root} holds no RealEstate10K sequence (<seq>.txt beside a <seq>/ folder of frames)")
+    return base
 
 
 def list_sequences(root: Path) -> list[str]:
