@@ -103,3 +103,31 @@ def test_skip_leaves_out_the_first_clips_and_a_gate_seed_draws_the_gate_set(monk
     assert fresh == [depth_probe.HELD_OUT_SEED + i for i in order[16:]]
     assert depth_probe.render_probe_clips(16) == [depth_probe.HELD_OUT_SEED + i for i in order[:16]]
     assert depth_probe.render_probe_clips(32, gate_seed=11_097_000) == [11_097_000 + i for i in order[:32]]
+
+
+def test_the_windowed_predictor_reads_depth_as_the_stitched_reconstruction(tmp_path):
+    import torch
+
+    from d4rt.config import D4RTConfig
+    from d4rt.evaluation.predictions import d4rt_predictor
+    from d4rt.model import D4RT
+    from d4rt.reconstruction import Reconstruction
+
+    torch.manual_seed(0)
+    model = D4RT(D4RTConfig.preset("tiny"))
+    model.save_pretrained(tmp_path / "tiny")
+    rgb = np.random.default_rng(1).integers(0, 256, (6, 24, 32, 3), dtype=np.uint8)
+    sequence = EvalSequence("clip", rgb, depth=np.ones((6, 24, 32), np.float32))
+    windowed = d4rt_predictor(str(tmp_path / "tiny"), window=4, overlap=2).predict(sequence, {"depth"}).depth
+    whole = d4rt_predictor(str(tmp_path / "tiny")).predict(sequence, {"depth"}).depth
+    expected = Reconstruction.from_model(model, rgb, window=4, overlap=2).depth(resolution=(24, 32)).depth
+    assert windowed.shape == whole.shape == (6, 24, 32)
+    np.testing.assert_allclose(windowed, expected, rtol=1e-5)
+    assert not np.allclose(windowed[4:], whole[4:])  # frames 4-5 come from the second window, its own context
+
+
+def test_overlap_without_a_window_is_refused_in_one_line(monkeypatch, capsys):
+    monkeypatch.setattr("sys.argv", ["depth_probe.py", "ckpt", "--out", "x.json", "--overlap", "2"])
+    with pytest.raises(SystemExit):
+        depth_probe.main()
+    assert "--overlap needs --window" in capsys.readouterr().err

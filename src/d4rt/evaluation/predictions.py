@@ -79,14 +79,17 @@ class ReconstructionPredictor:
 
 
 def d4rt_predictor(checkpoint: str, device: str = "cpu", pose_pairs: str | None = None,
-                   flip_average: bool | None = None) -> ReconstructionPredictor:
+                   flip_average: bool | None = None, window: int | None = None,
+                   overlap: int | None = None) -> ReconstructionPredictor:
     """D4RT from a ``save_pretrained`` directory, reconstructing each sequence's video by queries (poses
     fitted as ``pose_pairs`` says and answers flip-averaged as ``flip_average`` says, by default as the model's
-    config says: see :class:`~d4rt.reconstruction.Reconstruction`)."""
+    config says; ``window`` / ``overlap``: frames per encoded window and frames shared, None = one window up to
+    the model's ``max_frames``: see :class:`~d4rt.reconstruction.Reconstruction`)."""
     from d4rt.model import D4RT
 
     model = D4RT.from_pretrained(checkpoint, device=device)
     options = {} if pose_pairs is None else {"pose_pairs": pose_pairs}
     if flip_average is not None:
         options["flip_average"] = flip_average
-    return ReconstructionPredictor("d4rt", lambda sequence: Reconstruction.from_model(model, sequence.rgb, **options))
+    return ReconstructionPredictor("d4rt", lambda sequence: Reconstruction.from_model(
+        model, sequence.rgb, window=window, overlap=overlap, **options))
