@@ -182,17 +182,20 @@ print(min(d['models'], key=lambda k: camera_ate(d['models'][k])))")
   fi
   echo "S=$S $(date -u)" >> $J/judge.log
 fi
+# Every average carries the start's motion-mask threshold (an inference setting measured for the shipped weights;
+# runs from older weights may carry the default), so averaging never stops at it.
+MOTION=$(python -c "import json; from d4rt.config import MOTION_THRESHOLD as m; print(json.load(open('$J/start/config.json')).get('motion_threshold', m))")
 for w in $AVERAGE_WEIGHTS; do
   if [ -f $J/avg-$w/model.safetensors ]; then continue  # made by an earlier, interrupted judge
   elif [ "$w" = 1 ] && [ ${#S[@]} = 1 ]; then  # S itself (average_weights takes positive weights only)
     mkdir -p $J/avg-1 && cp ${S[0]}/config.json ${S[0]}/model.safetensors $J/avg-1/ && reuse_probe ${S[0]} $J/avg-1
   elif [ "$w" = 1 ]; then
     python tools/average_weights.py ${S[@]} --weights $(python -c "print(*[1] * ${#S[@]})") --out $J/avg-1 \
-      >> $J/judge.log 2>&1
+      --motion-threshold $MOTION >> $J/judge.log 2>&1
   else
     # The start may be a shipped model whose judge chose another pairing than the run's; the probe scores every
     # pairing and PAIRING=best writes the candidate's own, so the averages take the training recipe's.
-    python tools/average_weights.py $J/start ${S[@]} --pose-pairs adjacent \
+    python tools/average_weights.py $J/start ${S[@]} --pose-pairs adjacent --motion-threshold $MOTION \
       --weights $(python -c "print(1 - $w, *[$w / ${#S[@]}] * ${#S[@]})") --out $J/avg-$w >> $J/judge.log 2>&1
   fi
 done

@@ -10,7 +10,8 @@ head and the dense depth head (a training aid; stage 67). A model trained with s
 be averaged with it. The average then has the part, whose tensors come from the checkpoints that have it (their
 weights renormalised among them); its config is that of the first checkpoint with the pose head (its
 ``pose_pairs`` too, which they must share unless ``--pose-pairs`` names the average's) with every added part that
-any checkpoint has. Weights must be positive
+any checkpoint has. The motion-mask threshold (``motion_threshold``, an inference setting measured per model) must
+also be shared unless ``--motion-threshold`` names the average's. Weights must be positive
 and are normalised to sum to 1. Writes ``config.json`` and ``model.safetensors`` (D4RT.from_pretrained reads them)
 and prints what it averaged.
 """
@@ -31,6 +32,10 @@ from d4rt.model.weights import ADDABLE_PARTS, CONFIG_NAME, WEIGHTS_NAME, read_ch
 def _shared_config(configs: list[D4RTConfig]) -> D4RTConfig:
     """The averaged model's config: the checkpoints' common config, or, when some add a part, the config of the
     first with the relative-pose head (else the first) with every part that any of them adds."""
+    thresholds = sorted({c.motion_threshold for c in configs})
+    if len(thresholds) > 1:  # said apart from an architecture mismatch: one flag settles it
+        raise UserError(f"the checkpoints name different motion_threshold values {thresholds}: name the average's "
+                        "with --motion-threshold")
     if all(c == configs[0] for c in configs):
         return configs[0]
     headed = [c for c in configs if c.relative_pose_head]
@@ -45,12 +50,14 @@ def _shared_config(configs: list[D4RTConfig]) -> D4RTConfig:
     return (headed or configs)[0].replace(dense_depth_head=any(c.dense_depth_head for c in configs))
 
 
-def average(directories: list[Path], weights: list[float],
-            pose_pairs: str | None = None) -> tuple[dict[str, torch.Tensor], str]:
+def average(directories: list[Path], weights: list[float], pose_pairs: str | None = None,
+            motion_threshold: float | None = None) -> tuple[dict[str, torch.Tensor], str]:
     """(averaged tensors, the averaged model's config.json text); float tensors averaged in float64 and stored
     in their own dtype, others (none in D4RT today) required equal. ``pose_pairs``: the average's camera
     pairing, whatever the checkpoints name (a pairing is a choice made at inference: a judge with
-    PAIRING=best picks one per model, so a shipped model may name another than the run it is averaged with)."""
+    PAIRING=best picks one per model, so a shipped model may name another than the run it is averaged with).
+    ``motion_threshold``: the average's motion-mask threshold, whatever the checkpoints name (a run from weights of
+    an older config may carry the default where its start carries a measured one)."""
     if len(directories) != len(weights) or len(directories) < 2:
         raise UserError("give at least two checkpoints and one weight per checkpoint")
     if any(w <= 0 for w in weights):
@@ -58,6 +65,8 @@ def average(directories: list[Path], weights: list[float],
     configs, states = zip(*(read_checkpoint(d) for d in directories))
     if pose_pairs is not None:
         configs = [c.replace(pose_pairs=pose_pairs) for c in configs]
+    if motion_threshold is not None:
+        configs = [c.replace(motion_threshold=motion_threshold) for c in configs]
     config = _shared_config(list(configs))
     keys = sorted(set().union(*(s.keys() for s in states)))
     if any(not key.startswith(tuple(ADDABLE_PARTS.values())) for s in states for key in set(keys) - s.keys()):
@@ -83,9 +92,12 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True, help="directory to write")
     parser.add_argument("--pose-pairs", choices=POSE_PAIRS, default=None,
                         help="the average's camera pairing, whatever the checkpoints name (default: theirs, shared)")
+    parser.add_argument("--motion-threshold", type=float, default=None, metavar="X",
+                        help="the average's motion-mask threshold, whatever the checkpoints name (default: theirs, "
+                             "shared)")
     args = parser.parse_args()
     try:
-        tensors, config = average(args.checkpoints, args.weights, args.pose_pairs)
+        tensors, config = average(args.checkpoints, args.weights, args.pose_pairs, args.motion_threshold)
     except UserError as error:
         parser.error(str(error))
     args.out.mkdir(parents=True, exist_ok=True)

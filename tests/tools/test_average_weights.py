@@ -97,3 +97,19 @@ def test_a_model_that_added_the_dense_depth_head_averages_with_its_start(tmp_pat
     tensors, config_text = average_weights.average([start, tuned], [1.0, 1.0])
     assert_part_whole_and_rest_weighted(tensors, start, tuned, "dense_depth_head", 0.5)
     assert D4RTConfig.from_json(config_text) == start_config.replace(dense_depth_head=True)
+
+
+def test_a_run_with_another_motion_threshold_averages_once_the_average_names_one(tmp_path):
+    import json
+
+    torch.manual_seed(0)
+    shipped = D4RT(D4RTConfig.preset("tiny", motion_threshold=0.2)).save_pretrained(tmp_path / "shipped")
+    torch.manual_seed(1)
+    older = D4RT(D4RTConfig.preset("tiny")).save_pretrained(tmp_path / "older")  # the default threshold
+    with pytest.raises(UserError, match=r"different motion_threshold values \[0.05, 0.2\]: .*--motion-threshold"):
+        average_weights.average([shipped, older], [0.5, 0.5])
+    tensors, config_text = average_weights.average([shipped, older], [0.5, 0.5], motion_threshold=0.2)
+    assert json.loads(config_text)["motion_threshold"] == 0.2
+    first, second = D4RT.from_pretrained(shipped).state_dict(), D4RT.from_pretrained(older).state_dict()
+    for key, value in tensors.items():  # the weights are averaged as ever
+        torch.testing.assert_close(value, 0.5 * first[key] + 0.5 * second[key], rtol=1e-6, atol=1e-7)
