@@ -51,6 +51,7 @@ from d4rt.evaluation.benchmarks import Benchmark
 from d4rt.evaluation.harness import aggregate, evaluate_sequence
 from d4rt.evaluation.predictions import Prediction, d4rt_predictor
 from d4rt.evaluation.synthetic_benchmark import NUM_CLIPS, SIZES, clip_specs, gate_specs
+from d4rt.reconstruction.windows import window_overlap
 
 HELD_OUT_SEED = 9_000_000
 DEFAULT_CLIPS = 16  # the probe every stage since 20 reports
@@ -167,6 +168,11 @@ def main() -> None:
         parser.error("--window reads depth by queries; the dense head reads one window only")
     if args.overlap is not None and args.window is None:
         parser.error("--overlap needs --window")
+    if args.window is not None:
+        try:  # checked before anything is loaded or rendered, as the reconstruction would check it per clip
+            window_overlap(args.window, args.overlap)
+        except UserError as error:
+            parser.error(str(error))
     torch.set_num_threads(args.threads)
     try:  # every checkpoint loads (strictly) before the clips are rendered: a bad path fails in one line, at once
         if args.dense_head:

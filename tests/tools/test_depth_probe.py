@@ -126,8 +126,11 @@ def test_the_windowed_predictor_reads_depth_as_the_stitched_reconstruction(tmp_p
     assert not np.allclose(windowed[4:], whole[4:])  # frames 4-5 come from the second window, its own context
 
 
-def test_overlap_without_a_window_is_refused_in_one_line(monkeypatch, capsys):
-    monkeypatch.setattr("sys.argv", ["depth_probe.py", "ckpt", "--out", "x.json", "--overlap", "2"])
+@pytest.mark.parametrize("flags, message", [(["--overlap", "2"], "--overlap needs --window"),
+                                            (["--window", "1"], "window must be at least 2 frames, got 1"),
+                                            (["--window", "8", "--overlap", "8"], "overlap must be between 1 and")])
+def test_a_bad_window_is_refused_in_one_line_before_anything_loads(monkeypatch, capsys, flags, message):
+    monkeypatch.setattr("sys.argv", ["depth_probe.py", "no-such-checkpoint", "--out", "x.json", *flags])
     with pytest.raises(SystemExit):
         depth_probe.main()
-    assert "--overlap needs --window" in capsys.readouterr().err
+    assert message in capsys.readouterr().err
