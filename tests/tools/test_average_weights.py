@@ -101,12 +101,16 @@ def test_a_model_that_added_the_dense_depth_head_averages_with_its_start(tmp_pat
 
 def test_a_run_with_another_motion_threshold_averages_once_the_average_names_one(tmp_path):
     import json
+    import re
+
+    from d4rt.config import MOTION_THRESHOLD
 
     torch.manual_seed(0)
     shipped = D4RT(D4RTConfig.preset("tiny", motion_threshold=0.2)).save_pretrained(tmp_path / "shipped")
     torch.manual_seed(1)
     older = D4RT(D4RTConfig.preset("tiny")).save_pretrained(tmp_path / "older")  # the default threshold
-    with pytest.raises(UserError, match=r"different motion_threshold values \[0.05, 0.2\]: .*--motion-threshold"):
+    named = re.escape(str(sorted([MOTION_THRESHOLD, 0.2])))  # the default and the shipped calibration, named
+    with pytest.raises(UserError, match=rf"different motion_threshold values {named}: .*--motion-threshold"):
         average_weights.average([shipped, older], [0.5, 0.5])
     tensors, config_text = average_weights.average([shipped, older], [0.5, 0.5], motion_threshold=0.2)
     assert json.loads(config_text)["motion_threshold"] == 0.2
