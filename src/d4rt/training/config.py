@@ -109,6 +109,11 @@ class OptimConfig:
     matches a parameter counts, and a pattern that matches none is an error (not in paper). Why: blocks added to a
     trained model by :func:`d4rt.model.grow.deepen` start as the identity, and at the trained weights' learning
     rate their zeroed output projections grew to a few per cent of the old blocks' norms in 1,332 steps (stage 62).
+    freeze: glob patterns of parameter names (as ``lr_scale`` names them, e.g. ``"encoder.*"``) that are not trained:
+    they keep the weights the run starts from, get no gradient and no optimiser state; a pattern that matches none
+    is an error, and so is freezing every parameter (not in paper). Why: with the whole encoder frozen nothing
+    back-propagates through it, so a step costs about half (the decoder and heads fine-tuned on a fixed scene
+    representation, e.g. on a user's own clips).
     """
 
     lr: float = 1e-4
@@ -121,6 +126,7 @@ class OptimConfig:
     grad_clip: float = 10.0
     ema_decay: float | None = None
     lr_scale: dict = field(default_factory=dict)
+    freeze: tuple[str, ...] = ()
 
 
 @dataclass
@@ -220,6 +226,8 @@ class TrainConfig:
                     or not scale > 0:
                 raise UserError(f"optim.lr_scale maps parameter-name patterns to positive factors, got "
                                 f"{pattern!r}: {scale!r}")
+        if not all(optim.freeze):
+            raise UserError(f"optim.freeze lists parameter-name patterns (e.g. ['encoder.*']), got {list(optim.freeze)!r}")
         self.loss.validate()
         if self.loss.weight_dense_depth > 0 and not model.dense_depth_head:
             raise UserError("loss.weight_dense_depth needs model.overrides.dense_depth_head: true")

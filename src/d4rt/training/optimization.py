@@ -7,6 +7,7 @@ step, so resuming needs nothing but the step number and is exact.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from fnmatch import fnmatchcase
 
 import torch
@@ -41,6 +42,32 @@ def plain_name(name: str) -> str:
     while name.startswith(("module.", "_orig_mod.")):
         name = name.partition(".")[2]
     return name
+
+
+def freeze_parameters(model: nn.Module, patterns: Sequence[str]) -> int:
+    """Turn off the gradient of every parameter whose name matches one of ``patterns`` (:mod:`fnmatch`, names as the
+    bare model gives them) -> how many parameters (elements) were frozen. :func:`build_optimizer` then leaves them
+    out. Call it before wrapping the model for DDP or FSDP, which read ``requires_grad`` when they wrap.
+
+    Raises :class:`UserError` if a pattern matches no parameter or every parameter is matched.
+    """
+    if not patterns:
+        return 0
+    used, frozen, total = set(), 0, 0
+    for name, param in model.named_parameters():
+        total += param.numel()
+        matched = {pattern for pattern in patterns if fnmatchcase(plain_name(name), pattern)}
+        if matched:
+            used |= matched
+            param.requires_grad_(False)
+            frozen += param.numel()
+    unmatched = [pattern for pattern in patterns if pattern not in used]
+    if unmatched:
+        raise UserError(f"optim.freeze pattern(s) {', '.join(map(repr, unmatched))} match no parameter of the model "
+                        f"(names as in D4RT.named_parameters(), e.g. 'encoder.*')")
+    if frozen == total:
+        raise UserError(f"optim.freeze {list(patterns)!r} freezes every parameter of the model: nothing would train")
+    return frozen
 
 
 def build_optimizer(model: nn.Module, config: OptimConfig) -> torch.optim.AdamW:

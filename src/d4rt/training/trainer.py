@@ -59,7 +59,7 @@ from d4rt.training.distributed import (
 from d4rt.training.ema import WeightAverage
 from d4rt.training.logger import TrainLogger
 from d4rt.training.losses import d4rt_loss
-from d4rt.training.optimization import build_optimizer, learning_rate, set_learning_rate
+from d4rt.training.optimization import build_optimizer, freeze_parameters, learning_rate, set_learning_rate
 from d4rt.training.randomness import capture_rng_state, restore_rng_state, seed_rank
 from d4rt.training.stop import StopRequest
 from d4rt.training.validation import Validator
@@ -166,6 +166,7 @@ class Trainer:
             from d4rt.model.videomae import load_videomae_v2
 
             load_videomae_v2(model, spec.videomae)
+        freeze_parameters(model, self.config.optim.freeze)  # before wrapping: DDP and FSDP read requires_grad then
         return wrap_model(model.train(), self.strategy, self.context)
 
     def _check_run_directory(self, resume: bool) -> Path | None:
@@ -436,7 +437,9 @@ def _check_resumable(saved: dict, current: dict, path: Path) -> None:
         for k, v in d.items():
             items.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) and k != "overrides" else {f"{prefix}{k}": v})
         return items
-    a, b = flat(saved), flat(current)
+    # A key the saved config lacks is an option added since it was written: it ran under that option's default.
+    b = flat(current)
+    a = {**{k: v for k, v in flat(TrainConfig().to_dict()).items() if k in b}, **flat(saved)}
     changed = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k) and not k.startswith(RESUMABLE_CHANGES))
     if changed:
         raise UserError(f"cannot resume {path}: the config changed in {', '.join(changed)} "
