@@ -78,3 +78,26 @@ def test_keep_best_publishes_the_best_validated_checkpoint_and_survives_a_resume
         train(TrainConfig.from_dict(fast_config(clip_dir, run=steps, validation=bad)), tmp_path / "bad")
     with pytest.raises(UserError, match="keep_best_mode"):
         TrainConfig.from_dict(fast_config(clip_dir, validation={**validation, "keep_best_mode": "up"})).validate()
+
+
+def test_a_frozen_encoder_keeps_the_weights_it_started_from_while_the_rest_trains(tmp_path, clip_dir):
+    import torch
+
+    from d4rt.config import D4RTConfig
+    from d4rt.model import D4RT
+
+    torch.manual_seed(3)
+    D4RT(D4RTConfig.preset("tiny").replace(max_frames=4)).save_pretrained(tmp_path / "start")
+    start = load_file(str(tmp_path / "start" / "model.safetensors"))
+    model = {"preset": "tiny", "overrides": {"max_frames": 4}, "init_from": str(tmp_path / "start")}
+    weights, metrics = run(tmp_path, "frozen", clip_dir, model=model, run={"max_steps": 2, "checkpoint_every": 2},
+                           optim={"lr": 1e-3, "warmup_steps": 2, "freeze": ["encoder.*"]})
+    assert np.isfinite(metrics["loss/total"])
+    encoder = [k for k in start if k.startswith("encoder.")]
+    assert encoder and all(weights[k].equal(start[k]) for k in encoder)
+    assert all(not weights[k].equal(start[k]) for k in start if k.startswith("decoder.blocks.0."))
+    # the optimiser holds state for the trained parameters alone
+    state = load_file(str(tmp_path / "frozen" / "checkpoints" / "step-00000002" / "optimizer.safetensors"))
+    trained = sum(p.numel() for n, p in D4RT.from_pretrained(tmp_path / "start").named_parameters()
+                  if not n.startswith("encoder."))
+    assert sum(v.numel() for k, v in state.items() if "exp_avg_sq" in k) == trained

@@ -198,3 +198,34 @@ def test_rng_states_round_trip_through_json():
     seed_rank(3, 0)
     other_rank = torch.rand(3)
     assert not torch.equal(other_rank, expected[2])  # ranks draw different streams
+
+
+def test_freeze_turns_off_matching_gradients_and_refuses_a_pattern_that_matches_nothing_or_everything():
+    from d4rt.training.optimization import freeze_parameters
+
+    model = D4RT(D4RTConfig.preset("tiny"))
+    frozen = freeze_parameters(model, ["encoder.*", "query_embedding.time_*"])
+    assert frozen == sum(p.numel() for n, p in model.named_parameters()
+                         if n.startswith(("encoder.", "query_embedding.time_")))
+    optimizer = build_optimizer(model, OptimConfig())
+    kept = {id(p) for g in optimizer.param_groups for p in g["params"]}
+    for name, param in model.named_parameters():
+        frozen_here = name.startswith(("encoder.", "query_embedding.time_"))
+        assert param.requires_grad is not frozen_here and (id(param) in kept) is not frozen_here, name
+    with pytest.raises(UserError, match=r"'encoders\.\*' match no parameter"):
+        freeze_parameters(D4RT(D4RTConfig.preset("tiny")), ["encoders.*"])
+    with pytest.raises(UserError, match="freezes every parameter"):
+        freeze_parameters(D4RT(D4RTConfig.preset("tiny")), ["encoder.*", "decoder.*", "query_embedding.*"])
+
+
+def test_a_run_written_before_an_option_existed_resumes_under_its_default(tmp_path):
+    from d4rt.training import TrainConfig
+    from d4rt.training.trainer import _check_resumable
+
+    current = TrainConfig().to_dict()
+    older = TrainConfig().to_dict()
+    del older["optim"]["freeze"]  # as every checkpoint written before optim.freeze
+    _check_resumable(older, current, tmp_path)
+    frozen = TrainConfig.from_dict({"optim": {"freeze": ["encoder.*"]}}).to_dict()
+    with pytest.raises(UserError, match="optim.freeze"):
+        _check_resumable(older, frozen, tmp_path)
