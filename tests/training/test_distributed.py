@@ -1,7 +1,7 @@
 """The same training code under torchrun (gloo on CPU): DDP and FSDP (fully_shard) train a few steps,
 every rank ends with identical parameters, equal to one process that accumulates the same samples; a
 run stopped at a checkpoint and resumed under the same strategy ends bitwise equal (weights, optimiser state and
-the average of the weights)."""
+the average of the weights); a frozen encoder (optim.freeze) stays the start's under both strategies."""
 
 from __future__ import annotations
 
@@ -86,3 +86,24 @@ def test_resume_under_torchrun_restores_sharded_state_exactly(strategy, tmp_path
     weights, averaged = (load_file(str(tmp_path / "stopped" / name))
                          for name in ("model.safetensors", "ema/model.safetensors"))
     assert any(not weights[k].equal(averaged[k]) for k in weights)  # the average was gathered, not the weights
+
+
+@pytest.mark.slow(seconds=25)
+@pytest.mark.parametrize("strategy", ["ddp", "fsdp"])
+def test_a_frozen_encoder_stays_frozen_under_torchrun_and_the_rest_trains_as_in_one_process(strategy, tmp_path,
+                                                                                              clip_dir):
+    frozen = {"lr": 1e-3, "warmup_steps": 2, "freeze": ["encoder.*"]}
+    single = fast_config(clip_dir, optim=frozen, run={"max_steps": 2, "grad_accum": 2, "checkpoint_every": 2})
+    train(TrainConfig.from_dict(single), tmp_path / "single")
+    reference = load_file(str(tmp_path / "single" / "model.safetensors"))
+    config = write_config(tmp_path / "run.yaml", fast_config(
+        clip_dir, optim=frozen, run={"max_steps": 2, "grad_accum": 1, "checkpoint_every": 2, "strategy": strategy}))
+    ranks = torchrun(config, tmp_path / "out", tmp_path / "report.json")
+    assert [r["strategy"] for r in ranks] == [strategy, strategy]
+    assert ranks[0]["digests"] == ranks[1]["digests"], "parameters differ between ranks"
+    trained = load_file(str(tmp_path / "out" / "model.safetensors"))
+    for name, expected in reference.items():
+        if name.startswith("encoder."):  # both started from the same seeded weights and neither moved them
+            assert torch.equal(trained[name], expected), name
+        else:
+            torch.testing.assert_close(trained[name], expected, rtol=1e-4, atol=1e-5, msg=name)
