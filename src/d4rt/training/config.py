@@ -112,9 +112,10 @@ class OptimConfig:
     freeze: glob patterns of parameter names (as ``lr_scale`` names them, e.g. ``"encoder.*"``) that are not trained:
     they keep the weights the run starts from, get no gradient and no optimiser state; a pattern that matches none
     is an error, and so is freezing every parameter (not in paper). Why: with the whole encoder frozen nothing
-    back-propagates through it, so the model's part of a step costs about half (0.11 against 0.23 s for a 24-frame
-    clip, bf16, one AMD EPYC core; rendering is unchanged): the readout fine-tuned on a fixed scene representation,
-    e.g. on a user's own clips (stage 152, docs/training.md).
+    back-propagates through it: on pre-rendered 24-frame 64x64 clips a training step runs 1.8x the clips a second
+    (``benchmarks/bench_train.py --pool POOL --freeze 'encoder.*'``: 6.1 against 3.3, bf16, one AMD EPYC thread;
+    rendering on the fly is unchanged). For fine-tuning the readout on a fixed scene representation, e.g. on a user's
+    own clips (stage 152, docs/training.md).
     """
 
     lr: float = 1e-4

@@ -44,6 +44,13 @@ def plain_name(name: str) -> str:
     return name
 
 
+def _refuse_unmatched(option: str, unmatched: list[str]) -> None:
+    """One line naming the patterns of ``option`` that match no parameter (a typo would otherwise do nothing)."""
+    if unmatched:
+        raise UserError(f"{option} pattern(s) {', '.join(map(repr, unmatched))} match no parameter of the model "
+                        f"(names as in D4RT.named_parameters(), e.g. 'encoder.blocks.2.*' or 'encoder.*')")
+
+
 def freeze_parameters(model: nn.Module, patterns: Sequence[str]) -> int:
     """Turn off the gradient of every parameter whose name matches one of ``patterns`` (:mod:`fnmatch`, names as the
     bare model gives them) -> how many parameters (elements) were frozen. :func:`build_optimizer` then leaves them
@@ -61,10 +68,7 @@ def freeze_parameters(model: nn.Module, patterns: Sequence[str]) -> int:
             used |= matched
             param.requires_grad_(False)
             frozen += param.numel()
-    unmatched = [pattern for pattern in patterns if pattern not in used]
-    if unmatched:
-        raise UserError(f"optim.freeze pattern(s) {', '.join(map(repr, unmatched))} match no parameter of the model "
-                        f"(names as in D4RT.named_parameters(), e.g. 'encoder.*')")
+    _refuse_unmatched("optim.freeze", [pattern for pattern in patterns if pattern not in used])
     if frozen == total:
         raise UserError(f"optim.freeze {list(patterns)!r} freezes every parameter of the model: nothing would train")
     return frozen
@@ -86,10 +90,7 @@ def build_optimizer(model: nn.Module, config: OptimConfig) -> torch.optim.AdamW:
         which = next((i for i, (pattern, _) in enumerate(patterns) if fnmatchcase(plain_name(name), pattern)), -1)
         groups.setdefault((which, not no_weight_decay(name, param)), []).append(param)
     used = {which for which, _ in groups}
-    unmatched = [pattern for i, (pattern, _) in enumerate(patterns) if i not in used]
-    if unmatched:
-        raise UserError(f"optim.lr_scale pattern(s) {', '.join(map(repr, unmatched))} match no parameter of the model "
-                        f"(names as in D4RT.named_parameters(), e.g. 'encoder.blocks.2.*')")
+    _refuse_unmatched("optim.lr_scale", [pattern for i, (pattern, _) in enumerate(patterns) if i not in used])
     param_groups = []
     for (which, decayed), params in groups.items():
         group = {"params": params, "weight_decay": config.weight_decay if decayed else 0.0}
