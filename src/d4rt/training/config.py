@@ -114,8 +114,9 @@ class OptimConfig:
     is an error, and so is freezing every parameter (not in paper). Why: with the whole encoder frozen nothing
     back-propagates through it: on pre-rendered 24-frame 64x64 clips a training step runs 1.8x the clips a second
     (``benchmarks/bench_train.py --pool POOL --freeze 'encoder.*'``: 6.1 against 3.3, bf16, one AMD EPYC thread;
-    rendering on the fly is unchanged). Freezing the readout instead saves nothing measurable: the step still runs
-    the decoder both ways for the encoder's gradient (stage 153). For fine-tuning the readout on a fixed scene
+    rendering on the fly is unchanged). Freezing the readout instead saves little, as the step still runs the decoder
+    both ways for the encoder's gradient: 1.06x (``--freeze 'query_embedding.*' 'decoder.*'``, same set-up; stage
+    153). For fine-tuning the readout on a fixed scene
     representation, e.g. on a user's own clips (stage 152, docs/training.md).
     """
 
