@@ -1,10 +1,13 @@
-"""A checkpoint given a larger encoder input (``d4rt.model.grow.with_input_size``), written as a new one.
+"""A checkpoint given a larger encoder input or shorter tubelets (``d4rt.model.grow``), written as a new one.
 
     python tools/grow_input_checkpoint.py CHECKPOINT_DIR --image-size 96 --out DIR
+    python tools/grow_input_checkpoint.py CHECKPOINT_DIR --tubelet-frames 1 --out DIR
 
-Train it on with ``model.init_from: DIR``, ``image_size: 96`` and ``fourier_max_frequency`` (printed) among
-``model.overrides``, and ``data.dataset.size: [96, 96]``; the trainer refuses the checkpoint under any other input
-size. Only the encoder's spatial position table changes (resized as the encoder resizes it at run time).
+Train it on with ``model.init_from: DIR`` and the changed fields (printed) among ``model.overrides``, with
+``data.dataset.size: [96, 96]`` for a larger input; the trainer refuses the checkpoint under any other config. A
+larger input changes only the encoder's spatial position table (resized as the encoder resizes it at run time);
+shorter tubelets change the patch embedding (summed over the frames a tubelet no longer spans) and the time
+position table (each old row repeated), so that a clip that does not move gives the old tokens once per frame.
 """
 
 from __future__ import annotations
@@ -14,27 +17,38 @@ from pathlib import Path
 
 from d4rt.errors import UserError
 from d4rt.model import D4RT
-from d4rt.model.grow import with_input_size
+from d4rt.model.grow import with_input_size, with_tubelet_frames
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("checkpoint", type=Path, help="a directory written by D4RT.save_pretrained")
-    parser.add_argument("--image-size", type=int, required=True, help="new encoder input side in pixels")
+    parser.add_argument("--image-size", type=int, default=None, help="new encoder input side in pixels")
+    parser.add_argument("--tubelet-frames", type=int, default=None, help="new frames per tubelet (a divisor of the "
+                        "current span)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
+    if (args.image_size is None) == (args.tubelet_frames is None):
+        parser.error("give one of --image-size and --tubelet-frames")
     try:  # a missing or mismatched checkpoint, or a size the patches do not tile: one line, no traceback
         model = D4RT.from_pretrained(args.checkpoint)
-        if args.image_size <= model.config.image_size:
+        if args.tubelet_frames is not None:
+            grown = with_tubelet_frames(model, args.tubelet_frames).eval()
+        elif args.image_size <= model.config.image_size:
             raise UserError(f"--image-size {args.image_size} does not grow the input ({model.config.image_size})")
-        larger = with_input_size(model, args.image_size).eval()
+        else:
+            grown = with_input_size(model, args.image_size).eval()
     except UserError as error:
         parser.error(str(error))
-    larger.save_pretrained(args.out)
-    c = larger.config
-    print(f"{args.checkpoint} ({model.config.image_size} px, {model.config.grid_size}^2 tubelets a frame) -> {args.out} "
-          f"({c.image_size} px, {c.grid_size}^2 tubelets); train with model.overrides image_size: {c.image_size}, "
-          f"fourier_max_frequency: {c.fourier_max_frequency}")
+    grown.save_pretrained(args.out)
+    c, old = grown.config, model.config
+    if args.tubelet_frames is not None:
+        print(f"{args.checkpoint} ({old.tubelet_frames}-frame tubelets) -> {args.out} ({c.tubelet_frames}-frame "
+              f"tubelets); train with model.overrides tubelet_frames: {c.tubelet_frames}")
+    else:
+        print(f"{args.checkpoint} ({old.image_size} px, {old.grid_size}^2 tubelets a frame) -> {args.out} "
+              f"({c.image_size} px, {c.grid_size}^2 tubelets); train with model.overrides image_size: {c.image_size}, "
+              f"fourier_max_frequency: {c.fourier_max_frequency}")
 
 
 if __name__ == "__main__":

@@ -106,3 +106,30 @@ def test_a_larger_input_keeps_every_weight_meaning_what_it_did(tmp_path, make_mo
     larger.save_pretrained(tmp_path / "larger")
     model = build_from_checkpoint(tmp_path / "larger", image_size=96, fourier_max_frequency=32.0)
     assert torch.equal(model.encoder.pos_embed.space, pos.space)
+
+
+def test_shorter_tubelets_give_a_still_clip_the_old_tokens_once_per_frame(make_model, random_video, random_queries,
+                                                                        tmp_path, build_from_checkpoint):
+    """with_tubelet_frames: on a clip that does not move, every token before the first attention block is the old
+    tubelet's token, once per frame; the answers differ only by the aspect-ratio token's halved share of attention
+    (a few per cent of an answer at most); the copy trains on from init_from with the new span."""
+    from d4rt.model.grow import with_tubelet_frames
+
+    base = make_model()
+    shorter = with_tubelet_frames(base, 1).eval()
+    assert shorter.config.tubelet_frames == 1 and shorter.config.max_time_steps == 2 * base.config.max_time_steps
+    still = random_video(1, 64, 64, dtype=torch.float32).repeat(8, 1, 1, 1)[None]
+    mean, std = still.new_tensor(base.config.pixel_mean), still.new_tensor(base.config.pixel_std)
+    norm = (still - mean) / std
+    with torch.no_grad():
+        old = base.encoder.patch_embed(norm) + base.encoder.pos_embed(4, 8, 8)
+        new = shorter.encoder.patch_embed(norm) + shorter.encoder.pos_embed(8, 8, 8)
+    torch.testing.assert_close(new, old.repeat_interleave(2, dim=1), rtol=1e-5, atol=1e-5)
+    queries = random_queries(30, 8)[None]
+    a, b = _outputs(base, still, queries), _outputs(shorter, still, queries)
+    assert (a["points"] - b["points"]).abs().max() < 0.05 * a["points"].abs().mean()
+    with pytest.raises(UserError, match="divisor of 2"):
+        with_tubelet_frames(base, 2)
+    shorter.save_pretrained(tmp_path / "t1")
+    model = build_from_checkpoint(tmp_path / "t1", tubelet_frames=1)
+    assert torch.equal(model.encoder.patch_embed.proj.weight, shorter.encoder.patch_embed.proj.weight)

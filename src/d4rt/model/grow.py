@@ -18,6 +18,13 @@ A model can also be given a larger input (``with_input_size``): the encoder's sp
 the new tubelet grid exactly as the encoder resizes it at run time for another grid, and the query's Fourier
 frequencies are pinned to the old ones (by default they follow the input's Nyquist frequency), so every weight keeps
 its meaning; what changes is that the encoder sees more pixels, and the 9x9 RGB patch a smaller part of the image.
+
+A model can also be given shorter tubelets (``with_tubelet_frames``, e.g. one frame per token instead of two): each
+new token's patch-embedding kernel is the old kernel summed over the frames the new tubelet no longer spans, and time
+step j's position row is that of the old step holding frame j's tubelet, so on a clip that does not move every old
+token comes out once per new time step, exactly as before. Attention over duplicated keys and values weighs them as
+it weighed the originals, except against the aspect-ratio token, whose share of a global block or of the decoder's
+cross-attention halves with each halving of the tubelet: the one place the copy is not the old model's function.
 """
 
 from __future__ import annotations
@@ -104,3 +111,26 @@ def with_input_size(model: D4RT, image_size: int) -> D4RT:
         state["encoder.pos_embed.space"] = model.encoder.pos_embed.space_table(grid, grid).clone()
     resized.load_state_dict(state, strict=True)
     return resized.train(model.training)
+
+
+def with_tubelet_frames(model: D4RT, tubelet_frames: int) -> D4RT:
+    """A copy of ``model`` whose tubelets span ``tubelet_frames`` frames, a divisor of the current span (see the
+    module docstring): ``patch_embed.proj.weight (dim, 3 * k * p * p)`` becomes ``(dim, 3 * k' * p * p)``, its slot
+    s' the sum of the old slots s with s % k' == s'; ``pos_embed.time (ceil(max_frames / k), dim)`` becomes
+    ``(ceil(max_frames / k'), dim)``, row j the old row j // (k / k'). Raises :class:`UserError` if ``tubelet_frames``
+    does not divide the current span or would not shorten it."""
+    config = model.config
+    k = config.tubelet_frames
+    if tubelet_frames < 1 or tubelet_frames >= k or k % tubelet_frames:
+        raise UserError(f"with_tubelet_frames shortens tubelets to a divisor of {k} frames, not {tubelet_frames}")
+    shorter = D4RT(config.replace(tubelet_frames=tubelet_frames))
+    state = model.state_dict()
+    p, ratio = config.patch_size, k // tubelet_frames
+    with torch.no_grad():
+        weight = state["encoder.patch_embed.proj.weight"]  # (dim, 3 * k * p * p) in (channel, time, row, col) order
+        kernel = weight.reshape(weight.shape[0], 3, ratio, tubelet_frames, p, p).sum(dim=2)
+        state["encoder.patch_embed.proj.weight"] = kernel.reshape(weight.shape[0], -1).contiguous()
+        rows = torch.arange(shorter.config.max_time_steps) // ratio
+        state["encoder.pos_embed.time"] = state["encoder.pos_embed.time"][rows].clone()
+    shorter.load_state_dict(state, strict=True)
+    return shorter.train(model.training)
