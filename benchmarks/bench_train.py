@@ -7,6 +7,7 @@
     python benchmarks/bench_train.py --compile                         # eager vs torch.compile, same batches
     python benchmarks/bench_train.py --pool POOL --freeze 'encoder.*'  # the readout alone (stage 152)
     python benchmarks/bench_train.py --pool POOL --tubelet-frames 1    # one encoder token per frame (stage 154)
+    python benchmarks/bench_train.py --pool POOL --tubelet-stride 1    # overlapping two-frame tubelets (stage 155)
     python benchmarks/bench_train.py --preset base --frames 48 --size 256 --queries 2048 --device cuda
     torchrun --nproc_per_node 8 benchmarks/bench_train.py --preset giant --frames 48 --size 256 \\
         --queries 2048 --strategy fsdp --checkpointing                   # the paper's setting
@@ -44,7 +45,9 @@ def build_config(args, **changes) -> TrainConfig:
     return TrainConfig.from_dict({
         "model": {"preset": args.preset, "overrides": {"gradient_checkpointing": args.checkpointing,
                                                       **({"tubelet_frames": args.tubelet_frames}
-                                                         if args.tubelet_frames else {})}},
+                                                         if args.tubelet_frames else {}),
+                                                      **({"tubelet_stride": args.tubelet_stride}
+                                                         if args.tubelet_stride else {})}},
         "data": {"batch_size": args.batch_size, "workers": changes.get("workers", args.workers), "dataset": dataset},
         "optim": {"warmup_steps": 1, "freeze": args.freeze},
         "run": {"max_steps": args.steps, "device": args.device, "precision": changes.get("precision", args.precision),
@@ -215,6 +218,9 @@ def main() -> None:
     parser.add_argument("--checkpointing", action="store_true", help="activation checkpointing")
     parser.add_argument("--tubelet-frames", type=int, default=None,
                         help="frames per encoder token (default: the preset's; 1: one token per frame, stage 154)")
+    parser.add_argument("--tubelet-stride", type=int, default=None,
+                        help="frames between tubelet starts (default: the tubelet's frames; 1: overlapping two-frame "
+                             "tubelets, stage 155)")
     parser.add_argument("--freeze", nargs="+", default=[], metavar="PATTERN",
                         help="optim.freeze: parameter-name patterns that do not train, e.g. 'encoder.*'")
     parser.add_argument("--pool", type=Path, default=None, help="d4rt generate output (for --compare / --profile)")
@@ -243,7 +249,8 @@ def main() -> None:
     print(f"{args.preset}: {args.frames} frames at {args.size}x{args.size}, {args.queries} queries/clip, "
           f"batch {args.batch_size} x {world} process(es), {args.strategy}, {args.precision}"
           + (f", frozen {' '.join(args.freeze)}" if args.freeze else "")
-          + (f", {args.tubelet_frames}-frame tubelets" if args.tubelet_frames else ""))
+          + (f", {args.tubelet_frames}-frame tubelets" if args.tubelet_frames else "")
+          + (f", a tubelet every {args.tubelet_stride} frame(s)" if args.tubelet_stride else ""))
     print(f"  {clips / (args.batch_size * world):.2f} steps/s   {clips:.2f} clips/s   {clips * args.queries:,.0f} queries/s")
     if torch.cuda.is_available():
         print(f"  peak GPU memory (rank 0): {torch.cuda.max_memory_allocated() / 2**30:.2f} GiB")

@@ -1,13 +1,15 @@
-"""A checkpoint given a larger encoder input or shorter tubelets (``d4rt.model.grow``), written as a new one.
+"""A checkpoint given a larger encoder input or shorter or overlapping tubelets (``d4rt.model.grow``), written anew.
 
     python tools/grow_input_checkpoint.py CHECKPOINT_DIR --image-size 96 --out DIR
     python tools/grow_input_checkpoint.py CHECKPOINT_DIR --tubelet-frames 1 --out DIR
+    python tools/grow_input_checkpoint.py CHECKPOINT_DIR --tubelet-stride 1 --out DIR
 
 Train it on with ``model.init_from: DIR`` and the changed fields (printed) among ``model.overrides``, with
 ``data.dataset.size: [96, 96]`` for a larger input; the trainer refuses the checkpoint under any other config. A
 larger input changes only the encoder's spatial position table (resized as the encoder resizes it at run time);
 shorter tubelets change the patch embedding (summed over the frames a tubelet no longer spans) and the time
-position table (each old row repeated), so that a clip that does not move gives the old tokens once per frame.
+position table (each old row repeated), so that a clip that does not move gives the old tokens once per frame;
+overlapping tubelets keep the kernel (each old tubelet is still one of the new ones) and repeat the time rows.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from pathlib import Path
 
 from d4rt.errors import UserError
 from d4rt.model import D4RT
-from d4rt.model.grow import with_input_size, with_tubelet_frames
+from d4rt.model.grow import with_input_size, with_tubelet_frames, with_tubelet_stride
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -26,14 +28,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--image-size", type=int, default=None, help="new encoder input side in pixels")
     parser.add_argument("--tubelet-frames", type=int, default=None, help="new frames per tubelet (a divisor of the "
                         "current span)")
+    parser.add_argument("--tubelet-stride", type=int, default=None, help="new frames between tubelet starts (fewer "
+                        "than now: overlapping tubelets)")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    if (args.image_size is None) == (args.tubelet_frames is None):
-        parser.error("give one of --image-size and --tubelet-frames")
+    if sum(x is not None for x in (args.image_size, args.tubelet_frames, args.tubelet_stride)) != 1:
+        parser.error("give one of --image-size, --tubelet-frames and --tubelet-stride")
     try:  # a missing or mismatched checkpoint, or a size the patches do not tile: one line, no traceback
         model = D4RT.from_pretrained(args.checkpoint)
         if args.tubelet_frames is not None:
             grown = with_tubelet_frames(model, args.tubelet_frames).eval()
+        elif args.tubelet_stride is not None:
+            grown = with_tubelet_stride(model, args.tubelet_stride).eval()
         elif args.image_size <= model.config.image_size:
             raise UserError(f"--image-size {args.image_size} does not grow the input ({model.config.image_size})")
         else:
@@ -42,7 +48,10 @@ def main(argv: list[str] | None = None) -> None:
         parser.error(str(error))
     grown.save_pretrained(args.out)
     c, old = grown.config, model.config
-    if args.tubelet_frames is not None:
+    if args.tubelet_stride is not None:
+        print(f"{args.checkpoint} (a tubelet every {old.step_frames} frames) -> {args.out} (every {c.step_frames}); "
+              f"train with model.overrides tubelet_stride: {c.tubelet_stride}")
+    elif args.tubelet_frames is not None:
         print(f"{args.checkpoint} ({old.tubelet_frames}-frame tubelets) -> {args.out} ({c.tubelet_frames}-frame "
               f"tubelets); train with model.overrides tubelet_frames: {c.tubelet_frames}")
     else:

@@ -84,6 +84,11 @@ class D4RTConfig:
         patch_size: spatial side of one tubelet (pixels at ``image_size``).
         tubelet_frames: frames per tubelet. A clip whose length is not a multiple of it is padded by
             repeating its last frame (the padding is never queryable).
+        tubelet_stride: frames between the starts of consecutive tubelets; None (the paper's) is
+            ``tubelet_frames``, tubelets that do not overlap. Less overlaps them: 1 gives every frame its own
+            tokens, each tubelet holding its frame and the next (the last frame repeated past the clip's
+            end), so that a token still sees the motion between frames. The encoder's tokens grow by
+            ``tubelet_frames / tubelet_stride``.
         pixel_mean, pixel_std: per-channel RGB normalisation of [0, 1] pixels. ImageNet statistics,
             which VideoMAE v2 was pre-trained with, so converted weights see the inputs they expect.
 
@@ -174,6 +179,7 @@ class D4RTConfig:
     max_frames: int = 24
     patch_size: int = 8
     tubelet_frames: int = 2
+    tubelet_stride: int | None = None
     pixel_mean: tuple[float, float, float] = (0.485, 0.456, 0.406)
     pixel_std: tuple[float, float, float] = (0.229, 0.224, 0.225)
     # encoder
@@ -232,6 +238,13 @@ class D4RTConfig:
             # No global block: frames never exchange information and nothing attends to the aspect token.
             raise UserError(f"config global_attention_every {self.global_attention_every} exceeds encoder_depth "
                             f"{self.encoder_depth}: the encoder would have no global-attention block")
+        if self.tubelet_stride is not None and not (
+                _is_int(self.tubelet_stride) and 1 <= self.tubelet_stride <= self.tubelet_frames):
+            raise UserError(f"config tubelet_stride must be null or an integer in 1-{self.tubelet_frames} "
+                            f"(tubelet_frames), got {self.tubelet_stride!r}")
+        if self.dense_depth_head and self.step_frames != self.tubelet_frames:
+            raise UserError("config dense_depth_head answers each tubelet's own pixels: it needs tubelets that do not "
+                            f"overlap (tubelet_stride null or {self.tubelet_frames}), got {self.tubelet_stride}")
         if self.image_size % self.patch_size:
             raise UserError(f"config image_size {self.image_size} is not a multiple of patch_size {self.patch_size}")
         for part in ("encoder", "decoder"):
@@ -281,9 +294,15 @@ class D4RTConfig:
         return self.image_size // self.patch_size
 
     @property
+    def step_frames(self) -> int:
+        """Frames between consecutive tubelet time steps: ``tubelet_stride``, or ``tubelet_frames`` when it is None.
+        Frame t's tokens are those of time step ``t // step_frames``."""
+        return self.tubelet_frames if self.tubelet_stride is None else self.tubelet_stride
+
+    @property
     def max_time_steps(self) -> int:
-        """Tubelet time steps of the longest clip: ``ceil(max_frames / tubelet_frames)``."""
-        return -(-self.max_frames // self.tubelet_frames)
+        """Tubelet time steps of the longest clip: ``ceil(max_frames / step_frames)``."""
+        return -(-self.max_frames // self.step_frames)
 
     @property
     def fourier_max(self) -> float:
@@ -292,7 +311,7 @@ class D4RTConfig:
 
     def num_scene_tokens(self, num_frames: int) -> int:
         """Scene tokens for a clip of ``num_frames`` frames at full resolution (+1 aspect-ratio token)."""
-        steps = -(-num_frames // self.tubelet_frames)
+        steps = -(-num_frames // self.step_frames)
         return steps * self.grid_size**2 + 1
 
     # ---------------------------------------------------------------------------------------- presets

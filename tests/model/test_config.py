@@ -54,6 +54,9 @@ def test_default_fourier_max_is_the_encoder_nyquist_frequency():
     ({"rgb_patch_size": True}, "rgb_patch_size"),
     ({"fourier_max_frequency": True}, "fourier_max_frequency"),
     ({"init_std": float("nan")}, "init_std"),
+    ({"tubelet_stride": 3}, "tubelet_stride must be null or an integer in 1-2"),
+    ({"tubelet_stride": 0}, "tubelet_stride"),
+    ({"tubelet_stride": 1, "dense_depth_head": True}, "tubelets that do not overlap"),
 ])
 def test_bad_configs_raise_user_errors_naming_the_field(overrides, message):
     with pytest.raises(UserError, match=message):

@@ -133,3 +133,30 @@ def test_shorter_tubelets_give_a_still_clip_the_old_tokens_once_per_frame(make_m
     shorter.save_pretrained(tmp_path / "t1")
     model = build_from_checkpoint(tmp_path / "t1", tubelet_frames=1)
     assert torch.equal(model.encoder.patch_embed.proj.weight, shorter.encoder.patch_embed.proj.weight)
+
+
+def test_overlapping_tubelets_keep_the_old_tokens_and_add_those_between(make_model, random_video, random_queries,
+                                                                         tmp_path, build_from_checkpoint):
+    """with_tubelet_stride: the kernel is kept, so the tubelets that start where the old ones did give the old tokens
+    exactly (before any attention) on any clip; each time step takes the old row of its first frame; the model answers
+    queries at every frame and trains on from init_from."""
+    from d4rt.model.grow import with_tubelet_stride
+
+    base = make_model()
+    overlapping = with_tubelet_stride(base, 1).eval()
+    assert overlapping.config.step_frames == 1 and overlapping.config.max_time_steps == 24
+    assert torch.equal(overlapping.encoder.patch_embed.proj.weight, base.encoder.patch_embed.proj.weight)
+    video = random_video(6, 64, 64, dtype=torch.float32)[None]
+    norm = (video - video.new_tensor(base.config.pixel_mean)) / video.new_tensor(base.config.pixel_std)
+    with torch.no_grad():
+        old = base.encoder.patch_embed(norm) + base.encoder.pos_embed(3, 8, 8)
+        new = overlapping.encoder.patch_embed(norm) + overlapping.encoder.pos_embed(6, 8, 8)
+    assert torch.equal(new[:, ::2], old)
+    assert not torch.allclose(new[:, 1::2], old, atol=1e-3)  # the tubelets between: frames 1-2 and 3-4, new tokens
+    out = _outputs(overlapping, video, random_queries(20, 6)[None])
+    assert out["points"].shape == (1, 20, 3) and torch.isfinite(out["points"]).all()
+    with pytest.raises(UserError, match="more often than every 2 frames"):
+        with_tubelet_stride(base, 2)
+    overlapping.save_pretrained(tmp_path / "s1")
+    model = build_from_checkpoint(tmp_path / "s1", tubelet_stride=1)
+    assert torch.equal(model.encoder.pos_embed.time, overlapping.encoder.pos_embed.time)

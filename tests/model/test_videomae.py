@@ -92,6 +92,21 @@ def test_tubelet_embedding_equals_videomae_conv3d(make_model):
     torch.testing.assert_close(ours, conv.flatten(2).transpose(1, 2), atol=1e-5, rtol=1e-5)
 
 
+def test_overlapping_tubelets_are_the_conv3d_at_that_stride(make_model):
+    """tubelet_stride 1: a two-frame tubelet every frame, the clip's last frame repeated past its end."""
+    model = make_model(tubelet_stride=1)
+    video = torch.randn(1, 5, 64, 64, 3)
+    embed = model.encoder.patch_embed
+    weight = embed.proj.weight.reshape(-1, 3, 2, 8, 8)
+    padded = torch.cat([video, video[:, -1:]], dim=1).permute(0, 4, 1, 2, 3)
+    conv = F.conv3d(padded, weight, embed.proj.bias, stride=(1, 8, 8))  # (1, dim, 5, 8, 8)
+    with torch.no_grad():
+        ours = embed(video)
+    assert ours.shape == (1, 5, 8, 8, model.config.encoder_dim)
+    torch.testing.assert_close(ours, conv.permute(0, 2, 3, 4, 1), atol=1e-5, rtol=1e-5)
+    assert model.config.num_scene_tokens(5) == 5 * 64 + 1
+
+
 def test_pretraining_checkpoint_layout_with_wrapper_and_prefix(make_model):
     model = make_model()  # patch 8: the 16x16 kernels are resized
     checkpoint = {"model": videomae_state_dict(prefix="encoder.", pretrain_extras=True), "epoch": 1200}

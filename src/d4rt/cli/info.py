@@ -51,7 +51,9 @@ def run(args: argparse.Namespace) -> int:
     lines = [
         f"D4RT model '{c.name}'",
         f"  input      {c.max_frames} frames x {c.image_size}x{c.image_size} px, tubelets "
-        f"{c.tubelet_frames}x{c.patch_size}x{c.patch_size} -> {info['tokens_per_clip']} scene tokens (incl. aspect token)",
+        f"{c.tubelet_frames}x{c.patch_size}x{c.patch_size}"
+        + (f" every {c.step_frames} frame(s)" if c.step_frames != c.tubelet_frames else "")
+        + f" -> {info['tokens_per_clip']} scene tokens (incl. aspect token)",
         f"  encoder    width {c.encoder_dim}, depth {c.encoder_depth} (global attention every "
         f"{c.global_attention_every}), heads {c.encoder_heads}, MLP {c.encoder_mlp_dim}",
         f"  queries    {c.fourier_frequencies} Fourier frequencies (1..{c.fourier_max:g} cycles/image), "

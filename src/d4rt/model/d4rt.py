@@ -77,7 +77,7 @@ class D4RT(nn.Module):
         -> scene tokens ``(B, M, encoder_dim)``. T is padded to whole tubelets by repeating the last frame."""
         mean = video.new_tensor(self.config.pixel_mean)
         std = video.new_tensor(self.config.pixel_std)
-        video = pad_to_tubelets((video - mean) / std, self.config.tubelet_frames)
+        video = pad_to_tubelets((video - mean) / std, self.config.step_frames)
         return self.encoder(video, aspect_ratio.to(video.device))
 
     def decode(self, queries: torch.Tensor, scene_kv: SceneKV, patch_video: torch.Tensor | None,
@@ -94,7 +94,7 @@ class D4RT(nn.Module):
         if self.config.target_frame_heads:
             if tokens_per_step is None:
                 raise ValueError("config target_frame_heads needs tokens_per_step")
-            steps = queries[..., 3].round().long() // self.config.tubelet_frames
+            steps = queries[..., 3].round().long() // self.config.step_frames
             frame = FrameRestriction(steps, tokens_per_step, self.config.target_frame_heads)
         out = self.decoder(tokens, scene_kv, same_camera, attention_block, frame)
         if self.config.uv_residual:  # the head answers the displacement (config uv_residual)
@@ -148,7 +148,7 @@ class D4RT(nn.Module):
         out = self.decode(queries, self.decoder.project_scene(tokens), patch_video, attention_block=attention_block,
                           tokens_per_step=per_step, patch_sizes=patch_sizes)
         if attention_block is not None:
-            k, p = self.config.tubelet_frames, self.config.patch_size
+            k, p = self.config.step_frames, self.config.patch_size
             out["token_grid"] = torch.tensor([-(-video.shape[1] // k), video.shape[2] // p, video.shape[3] // p, k],
                                              device=tokens.device)
         if self.dense_depth is not None:

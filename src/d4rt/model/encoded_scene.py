@@ -195,7 +195,7 @@ class EncodedScene:
     @property
     def tokens_per_step(self) -> int:
         """Tubelet tokens per time step of the scene (rows x columns; the aspect-ratio token excluded)."""
-        steps = -(-self.num_frames // self.model.config.tubelet_frames)
+        steps = -(-self.num_frames // self.model.config.step_frames)
         return (self.tokens.shape[1] - 1) // steps
 
     def __repr__(self) -> str:

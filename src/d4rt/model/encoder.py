@@ -1,6 +1,7 @@
 """The video encoder E: a ViT over the tubelets of a whole clip -> the Global Scene Representation F.
 
-Tokens: one per tubelet (``tubelet_frames`` x ``patch_size`` x ``patch_size`` pixels), plus one
+Tokens: one per tubelet (``tubelet_frames`` x ``patch_size`` x ``patch_size`` pixels; a tubelet starts every
+``step_frames`` frames, so with a ``tubelet_stride`` below ``tubelet_frames`` they overlap in time), plus one
 aspect-ratio token (a linear embedding of the original W / H). Blocks alternate between frame-local
 attention (the tokens of one tubelet time step attend to each other) and global attention (every token
 of the clip, the aspect-ratio token included, attends to every other), as in VGGT. In frame-local
@@ -20,23 +21,31 @@ from d4rt.model.layers import SelfAttentionBlock, run_block, sincos_1d, sincos_2
 class TubeletEmbedding(nn.Module):
     """Cut the clip into tubelets and embed each linearly.
 
-    ``video: (B, T, H, W, 3)`` normalised pixels, T a multiple of ``tubelet_frames``, H and W multiples
-    of ``patch_size`` -> ``(B, T', H', W', dim)`` with T' = T / tubelet_frames, H' = H / patch_size.
+    ``video: (B, T, H, W, 3)`` normalised pixels, T a multiple of ``stride``, H and W multiples of
+    ``patch_size`` -> ``(B, T', H', W', dim)`` with T' = T / stride, H' = H / patch_size; tubelet j spans
+    frames j * stride to j * stride + tubelet_frames - 1, the last frame repeated past the clip's end
+    (``stride`` None: ``tubelet_frames``, tubelets that do not overlap).
     The projection weight ``proj.weight: (dim, 3 * tubelet_frames * patch^2)`` flattens each tubelet in
     (channel, time, row, column) order: exactly a Conv3d kernel ``(dim, 3, t, p, p)`` reshaped, which
     is how VideoMAE v2 stores its patch embedding.
     """
 
-    def __init__(self, tubelet_frames: int, patch_size: int, dim: int):
+    def __init__(self, tubelet_frames: int, patch_size: int, dim: int, stride: int | None = None):
         super().__init__()
         self.tubelet_frames, self.patch_size = tubelet_frames, patch_size
+        self.stride = tubelet_frames if stride is None else stride
         self.proj = nn.Linear(3 * tubelet_frames * patch_size * patch_size, dim)
 
     def forward(self, video: torch.Tensor) -> torch.Tensor:
         b, t, h, w, c = video.shape
-        k, p = self.tubelet_frames, self.patch_size
-        x = video.reshape(b, t // k, k, h // p, p, w // p, p, c)
-        x = x.permute(0, 1, 3, 5, 7, 2, 4, 6)  # (B, T', H', W', C, k, p, p)
+        k, s, p = self.tubelet_frames, self.stride, self.patch_size
+        if s == k:
+            x = video.reshape(b, t // k, k, h // p, p, w // p, p, c)
+            x = x.permute(0, 1, 3, 5, 7, 2, 4, 6)  # (B, T', H', W', C, k, p, p)
+        else:  # overlapping tubelets: a window of k frames every s frames
+            video = torch.cat([video, video[:, -1:].expand(b, k - s, h, w, c)], dim=1)
+            x = video.unfold(1, k, s)  # (B, T', H, W, C, k)
+            x = x.reshape(b, t // s, h // p, p, w // p, p, c, k).permute(0, 1, 2, 4, 6, 7, 3, 5)
         return self.proj(x.flatten(4).to(self.proj.weight.dtype))  # float32 pixels into a bf16 model too
 
 
@@ -72,7 +81,7 @@ class VideoEncoder(nn.Module):
 
     ``forward(video: (B, T, H, W, 3), aspect_ratio: (B,)) -> (B, T' * H' * W' + 1, dim)``: tubelet
     tokens in (time, row, column) order followed by the aspect-ratio token, after a final LayerNorm.
-    ``video`` is normalised with the config's pixel mean/std; T a multiple of ``tubelet_frames`` and at
+    ``video`` is normalised with the config's pixel mean/std; T a multiple of ``step_frames`` and at
     most ``max_frames`` rounded up to it; H, W multiples of ``patch_size`` at most ``image_size``.
     """
 
@@ -80,7 +89,7 @@ class VideoEncoder(nn.Module):
         super().__init__()
         self.config = config
         dim = config.encoder_dim
-        self.patch_embed = TubeletEmbedding(config.tubelet_frames, config.patch_size, dim)
+        self.patch_embed = TubeletEmbedding(config.tubelet_frames, config.patch_size, dim, config.step_frames)
         self.pos_embed = SpaceTimePositions(config.max_time_steps, config.grid_size, dim)
         # W / H as given (the paper's "linear embedding of the aspect ratio").
         self.aspect_embed = nn.Linear(1, dim)

@@ -25,6 +25,9 @@ step j's position row is that of the old step holding frame j's tubelet, so on a
 token comes out once per new time step, exactly as before. Attention over duplicated keys and values weighs them as
 it weighed the originals, except against the aspect-ratio token, whose share of a global block or of the decoder's
 cross-attention halves with each halving of the tubelet: the one place the copy is not the old model's function.
+Overlapping tubelets (``with_tubelet_stride``: a two-frame tubelet every frame) keep the kernel as it is, so a token
+still sees the motion between its two frames; the tubelets that start where the old ones did are the old tokens
+exactly, those between them new, and each takes the time position row of the old tubelet holding its first frame.
 """
 
 from __future__ import annotations
@@ -134,3 +137,20 @@ def with_tubelet_frames(model: D4RT, tubelet_frames: int) -> D4RT:
         state["encoder.pos_embed.time"] = state["encoder.pos_embed.time"][rows].clone()
     shorter.load_state_dict(state, strict=True)
     return shorter.train(model.training)
+
+
+def with_tubelet_stride(model: D4RT, tubelet_stride: int) -> D4RT:
+    """A copy of ``model`` with a tubelet every ``tubelet_stride`` frames, fewer than the frames between its tubelets
+    now (see the module docstring): the patch kernel is kept; ``pos_embed.time`` becomes ``(ceil(max_frames /
+    tubelet_stride), dim)``, row j the old row of frame j * tubelet_stride. Raises :class:`UserError` if the stride
+    would not shorten the step."""
+    config = model.config
+    if not 1 <= tubelet_stride < config.step_frames:
+        raise UserError(f"with_tubelet_stride starts tubelets more often than every {config.step_frames} frames: "
+                        f"{tubelet_stride} does not")
+    overlapping = D4RT(config.replace(tubelet_stride=tubelet_stride))
+    state = model.state_dict()
+    rows = torch.arange(overlapping.config.max_time_steps) * tubelet_stride // config.step_frames
+    state["encoder.pos_embed.time"] = state["encoder.pos_embed.time"][rows].clone()
+    overlapping.load_state_dict(state, strict=True)
+    return overlapping.train(model.training)

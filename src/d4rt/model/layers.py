@@ -107,7 +107,7 @@ class CrossAttention(nn.Module):
 class FrameRestriction:
     """Which scene tokens a query's frame-restricted heads see: the ``tokens_per_step`` tokens of its time step.
 
-    ``steps: (B, N)`` long, each query's tubelet time step (t_tgt // tubelet_frames); ``tokens_per_step``: tubelet
+    ``steps: (B, N)`` long, each query's tubelet time step (t_tgt // config step_frames); ``tokens_per_step``: tubelet
     tokens per time step (rows x columns); ``heads``: how many heads, the first ones, are restricted. The context
     tokens are in (time step, row, column) order, any further tokens (the aspect-ratio token) after them.
     """

@@ -31,7 +31,7 @@ def peak_tflops(device_name: str | None, dtype: str) -> float | None:
 
 def token_grid(config: D4RTConfig, frames: int) -> tuple[int, int]:
     """(tubelet time steps, tokens per step) of a clip of ``frames`` frames at the encoder input."""
-    return -(-frames // config.tubelet_frames), config.grid_size ** 2
+    return -(-frames // config.step_frames), config.grid_size ** 2
 
 
 def encoder_flops(config: D4RTConfig, frames: int) -> int:
