@@ -252,7 +252,9 @@ def test_known_poses_and_scale(tmp_path, clip, checkpoint, cli):
     by a Sim(3), so the fit is exact), --scale multiplies lengths; their refusals are one line each."""
     video = tmp_path / "v.npy"
     np.save(video, clip.rgb)
-    base = ("reconstruct", video, "--checkpoint", checkpoint, "--tracks", "2", "--outputs", "npz")
+    # fp32: the checks below compare runs with different decoder batches, which bf16 on an AMX CPU answers with other
+    # kernels (differences of bf16's size, up to 7e-4 here), while what is tested is the scale and the known-pose fit.
+    base = ("reconstruct", video, "--checkpoint", checkpoint, "--tracks", "2", "--outputs", "npz", "--dtype", "fp32")
     assert cli(*base, "-o", tmp_path / "plain").returncode == 0
     with np.load(tmp_path / "plain" / "reconstruction.npz") as npz:
         estimated, depth = npz["cam_to_world"], npz["depth"]
@@ -268,7 +270,7 @@ def test_known_poses_and_scale(tmp_path, clip, checkpoint, cli):
     r = cli(*base, "-o", tmp_path / "scaled", "--scale", "0.5", "--chunk-size", "7")  # small decoder batches
     assert r.returncode == 0, r.stderr
     with np.load(tmp_path / "scaled" / "reconstruction.npz") as npz:
-        np.testing.assert_allclose(npz["depth"], 0.5 * depth, rtol=1e-5)
+        np.testing.assert_allclose(npz["depth"], 0.5 * depth, rtol=1e-5, atol=1e-6)  # atol: fp32 noise near 0
         np.testing.assert_allclose(npz["cam_to_world"][:, :3, 3], 0.5 * estimated[:, :3, 3], atol=1e-6)
     (tmp_path / "poses.txt").write_text("0 0 0 0 0 0 0 1\n")
     np.save(tmp_path / "few.npy", known[:3])

@@ -130,6 +130,8 @@ def test_shorter_tubelets_give_a_still_clip_the_old_tokens_once_per_frame(make_m
     assert (a["points"] - b["points"]).abs().max() < 0.05 * a["points"].abs().mean()
     with pytest.raises(UserError, match="divisor of 2"):
         with_tubelet_frames(base, 2)
+    with pytest.raises(UserError, match="do not overlap"):
+        with_tubelet_frames(make_model(tubelet_stride=1), 1)
     shorter.save_pretrained(tmp_path / "t1")
     model = build_from_checkpoint(tmp_path / "t1", tubelet_frames=1)
     assert torch.equal(model.encoder.patch_embed.proj.weight, shorter.encoder.patch_embed.proj.weight)

@@ -126,6 +126,9 @@ def with_tubelet_frames(model: D4RT, tubelet_frames: int) -> D4RT:
     k = config.tubelet_frames
     if tubelet_frames < 1 or tubelet_frames >= k or k % tubelet_frames:
         raise UserError(f"with_tubelet_frames shortens tubelets to a divisor of {k} frames, not {tubelet_frames}")
+    if config.step_frames != k:
+        raise UserError(f"with_tubelet_frames shortens tubelets that do not overlap; this model starts one every "
+                        f"{config.step_frames} frames (tubelet_stride)")
     shorter = D4RT(config.replace(tubelet_frames=tubelet_frames))
     state = model.state_dict()
     p, ratio = config.patch_size, k // tubelet_frames
