@@ -39,13 +39,11 @@ class TubeletEmbedding(nn.Module):
     def forward(self, video: torch.Tensor) -> torch.Tensor:
         b, t, h, w, c = video.shape
         k, s, p = self.tubelet_frames, self.stride, self.patch_size
-        if s == k:
-            x = video.reshape(b, t // k, k, h // p, p, w // p, p, c)
-            x = x.permute(0, 1, 3, 5, 7, 2, 4, 6)  # (B, T', H', W', C, k, p, p)
-        else:  # overlapping tubelets: a window of k frames every s frames
+        if s < k:  # overlapping tubelets: the last ones reach k - s frames past the clip's end
             video = torch.cat([video, video[:, -1:].expand(b, k - s, h, w, c)], dim=1)
-            x = video.unfold(1, k, s)  # (B, T', H, W, C, k)
-            x = x.reshape(b, t // s, h // p, p, w // p, p, c, k).permute(0, 1, 2, 4, 6, 7, 3, 5)
+        x = video.unfold(1, k, s)  # (B, T', H, W, C, k): a window of k frames every s frames
+        # -> (B, T', H', W', C, k, p, p): each tubelet in (channel, time, row, column) order
+        x = x.reshape(b, t // s, h // p, p, w // p, p, c, k).permute(0, 1, 2, 4, 6, 7, 3, 5)
         return self.proj(x.flatten(4).to(self.proj.weight.dtype))  # float32 pixels into a bf16 model too
 
 
