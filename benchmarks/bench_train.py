@@ -8,6 +8,7 @@
     python benchmarks/bench_train.py --pool POOL --freeze 'encoder.*'  # the readout alone (stage 152)
     python benchmarks/bench_train.py --pool POOL --tubelet-frames 1    # one encoder token per frame (stage 154)
     python benchmarks/bench_train.py --pool POOL --tubelet-stride 1    # overlapping two-frame tubelets (stage 155)
+    python benchmarks/bench_train.py --pool POOL --muon 'encoder.blocks.*' 'decoder.blocks.*'  # Muon (stage 156)
     python benchmarks/bench_train.py --preset base --frames 48 --size 256 --queries 2048 --device cuda
     torchrun --nproc_per_node 8 benchmarks/bench_train.py --preset giant --frames 48 --size 256 \\
         --queries 2048 --strategy fsdp --checkpointing                   # the paper's setting
@@ -49,8 +50,8 @@ def build_config(args, **changes) -> TrainConfig:
                                                       **({"tubelet_stride": args.tubelet_stride}
                                                          if args.tubelet_stride else {})}},
         "data": {"batch_size": args.batch_size, "workers": changes.get("workers", args.workers), "dataset": dataset},
-        "optim": {"warmup_steps": 1, "freeze": args.freeze},
-        "run": {"max_steps": args.steps, "device": args.device, "precision": changes.get("precision", args.precision),
+        "optim": {"warmup_steps": 1, "freeze": args.freeze, "muon": args.muon},
+        "run": {"max_steps": args.steps, "grad_accum": args.grad_accum, "device": args.device, "precision": changes.get("precision", args.precision),
                 "strategy": args.strategy, "log_every": args.warmup, "checkpoint_every": 10 ** 9,
                 "tensorboard": False, "progress": False},
     })
@@ -209,6 +210,7 @@ def main() -> None:
                         "(default: 1.5 x the input side, squared)")
     parser.add_argument("--crop-policy", default="paper", choices=["paper", "centered", "none"])
     parser.add_argument("--batch-size", type=int, default=1, help="clips per process per step")
+    parser.add_argument("--grad-accum", type=int, default=1, help="micro-batches per optimiser step (run.grad_accum)")
     parser.add_argument("--steps", type=int, default=40)
     parser.add_argument("--warmup", type=int, default=10, help="steps left out of the measurement")
     parser.add_argument("--workers", type=int, default=2)
@@ -223,6 +225,8 @@ def main() -> None:
                              "tubelets, stage 155)")
     parser.add_argument("--freeze", nargs="+", default=[], metavar="PATTERN",
                         help="optim.freeze: parameter-name patterns that do not train, e.g. 'encoder.*'")
+    parser.add_argument("--muon", nargs="+", default=[], metavar="PATTERN",
+                        help="step the 2-D weights these parameter-name patterns match with Muon (optim.muon)")
     parser.add_argument("--pool", type=Path, default=None, help="d4rt generate output (for --compare / --profile)")
     parser.add_argument("--compare", action="store_true", help="CPU set-ups side by side (needs --pool)")
     parser.add_argument("--profile", action="store_true", help="time the parts of a step")
@@ -251,7 +255,7 @@ def main() -> None:
           + (f", frozen {' '.join(args.freeze)}" if args.freeze else "")
           + (f", {args.tubelet_frames}-frame tubelets" if args.tubelet_frames else "")
           + (f", a tubelet every {args.tubelet_stride} frame(s)" if args.tubelet_stride else ""))
-    print(f"  {clips / (args.batch_size * world):.2f} steps/s   {clips:.2f} clips/s   {clips * args.queries:,.0f} queries/s")
+    print(f"  {clips / (args.batch_size * world * args.grad_accum):.2f} steps/s   {clips:.2f} clips/s   {clips * args.queries:,.0f} queries/s")
     if torch.cuda.is_available():
         print(f"  peak GPU memory (rank 0): {torch.cuda.max_memory_allocated() / 2**30:.2f} GiB")
 

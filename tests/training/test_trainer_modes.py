@@ -101,3 +101,26 @@ def test_a_frozen_encoder_keeps_the_weights_it_started_from_while_the_rest_train
     trained = sum(p.numel() for n, p in D4RT.from_pretrained(tmp_path / "start").named_parameters()
                   if not n.startswith("encoder."))
     assert sum(v.numel() for k, v in state.items() if "exp_avg_sq" in k) == trained
+
+
+def test_muon_steps_the_matched_matrices_and_a_resumed_run_is_bitwise_the_uninterrupted_one(tmp_path, clip_dir):
+    optim = {**fast_config(clip_dir)["optim"], "decay_steps": 4, "muon": ["encoder.blocks.*", "decoder.blocks.*"]}
+    steps = {"checkpoint_every": 1, "keep_checkpoints": 10}
+    whole, metrics = run(tmp_path, "whole", clip_dir, optim=optim, run={**steps, "max_steps": 4})
+    assert np.isfinite(metrics["loss/total"])
+    # Muon keeps a momentum buffer for the block matrices, AdamW its moments for everything else.
+    state = load_file(str(tmp_path / "whole" / "checkpoints" / "step-00000004" / "optimizer.safetensors"))
+    momentum = {k.rsplit("/", 1)[0] for k in state if k.endswith("/momentum_buffer")}
+    moments = {k.rsplit("/", 1)[0] for k in state if k.endswith("/exp_avg")}
+    assert "encoder.blocks.0.attn.qkv.weight" in momentum and "decoder.blocks.3.mlp.fc2.weight" in momentum
+    assert all(".blocks." in name and name.endswith(".weight") for name in momentum)
+    assert not momentum & moments and "encoder.blocks.0.norm1.weight" in moments
+    assert "encoder.patch_embed.proj.weight" in moments and "decoder.heads.heads.points.weight" in moments
+    adamw, _ = run(tmp_path, "adamw", clip_dir, optim={**optim, "muon": []}, run={**steps, "max_steps": 4})
+    assert any(not whole[k].equal(adamw[k]) for k in whole)
+    # Stopped after 2 steps and resumed to 4: the same weights, bit for bit (both optimisers' state restored).
+    run(tmp_path, "resumed", clip_dir, optim=optim, run={**steps, "max_steps": 2})
+    config = TrainConfig.from_dict(fast_config(clip_dir, optim=optim, run={**steps, "max_steps": 4}))
+    train(config, tmp_path / "resumed", resume=True)
+    resumed = load_file(str(tmp_path / "resumed" / "model.safetensors"))
+    assert all(whole[k].equal(resumed[k]) for k in whole)

@@ -15,6 +15,7 @@ from d4rt.errors import UserError
 from d4rt.model import D4RT
 from d4rt.training import OptimConfig, build_optimizer, learning_rate, read_checkpoint, write_checkpoint
 from d4rt.training.data import SampleStream
+from d4rt.training.optimization import freeze_parameters, set_learning_rate
 from d4rt.training.randomness import capture_rng_state, restore_rng_state, seed_rank
 
 
@@ -201,7 +202,7 @@ def test_rng_states_round_trip_through_json():
 
 
 def test_freeze_turns_off_matching_gradients_and_refuses_a_pattern_that_matches_nothing_or_everything():
-    from d4rt.training.optimization import freeze_parameters
+
 
     model = D4RT(D4RTConfig.preset("tiny"))
     frozen = freeze_parameters(model, ["encoder.*", "query_embedding.time_*"])
@@ -216,6 +217,32 @@ def test_freeze_turns_off_matching_gradients_and_refuses_a_pattern_that_matches_
         freeze_parameters(D4RT(D4RTConfig.preset("tiny")), ["encoders.*"])
     with pytest.raises(UserError, match="freezes every parameter"):
         freeze_parameters(D4RT(D4RTConfig.preset("tiny")), ["encoder.*", "decoder.*", "query_embedding.*"])
+
+
+def test_muon_takes_the_matched_trained_matrices_and_adamw_the_rest_and_refuses_what_it_cannot_take():
+    from d4rt.training.optimization import OptimizerChain
+
+    model = D4RT(D4RTConfig.preset("tiny"))
+    chain = build_optimizer(model, OptimConfig(muon=("decoder.blocks.*",), lr_scale={"decoder.blocks.0.*": 2.0}))
+    assert isinstance(chain, OptimizerChain)
+    adamw, muon = chain.optimizers
+    assert isinstance(adamw, torch.optim.AdamW) and isinstance(muon, torch.optim.Muon)
+    names = {id(p): n for n, p in model.named_parameters()}
+    stepped = {names[id(p)]: opt for opt in chain.optimizers for g in opt.param_groups for p in g["params"]}
+    assert sorted(stepped) == sorted(names.values())  # every parameter, once
+    expected = {n for n, p in model.named_parameters() if n.startswith("decoder.blocks.") and p.ndim == 2}
+    assert {n for n, opt in stepped.items() if opt is muon} == expected
+    # the rate's schedule and lr_scale reach Muon's groups too
+    set_learning_rate(chain, 1e-3)
+    rates = {names[id(p)]: g["lr"] for g in muon.param_groups for p in g["params"]}
+    assert rates["decoder.blocks.0.mlp.fc1.weight"] == 2e-3 and rates["decoder.blocks.1.mlp.fc1.weight"] == 1e-3
+    assert all(g["weight_decay"] == OptimConfig().weight_decay for g in muon.param_groups)
+    assert isinstance(build_optimizer(model, OptimConfig()), torch.optim.AdamW)  # no patterns: AdamW alone
+    with pytest.raises(UserError, match=r"optim.muon pattern\(s\) '\*.bias' match no trained 2-D weight"):
+        build_optimizer(model, OptimConfig(muon=("decoder.*", "*.bias")))
+    freeze_parameters(model, ["decoder.*"])
+    with pytest.raises(UserError, match="match no trained 2-D weight"):
+        build_optimizer(model, OptimConfig(muon=("decoder.blocks.*",)))
 
 
 def test_a_run_written_before_an_option_existed_resumes_under_its_default(tmp_path):

@@ -118,6 +118,12 @@ class OptimConfig:
     both ways for the encoder's gradient: 1.06x (``--freeze 'query_embedding.*' 'decoder.*'``, same set-up; stage
     153). For fine-tuning the readout on a fixed scene
     representation, e.g. on a user's own clips (stage 152, docs/training.md).
+    muon: glob patterns of parameter names (as ``lr_scale`` names them, e.g. ``"encoder.blocks.*"``) whose 2-D
+    weights are stepped by Muon (``torch.optim.Muon``: the momentum of the gradient orthogonalised by Newton-Schulz
+    steps) instead of AdamW, at AdamW's rate, schedule and weight decay (Moonshot's RMS matching); biases, norms,
+    tables and every weight no pattern matches stay with AdamW. Empty: AdamW alone, as the paper. Not with FSDP. Why:
+    Muon trains transformers' hidden matrices in fewer steps than AdamW (Jordan et al. 2024; Liu et al., "Muon is
+    Scalable for LLM Training", 2025), and CPU steps are this project's budget (stage 156, docs/training.md).
     """
 
     lr: float = 1e-4
@@ -131,6 +137,7 @@ class OptimConfig:
     ema_decay: float | None = None
     lr_scale: dict = field(default_factory=dict)
     freeze: tuple[str, ...] = ()
+    muon: tuple[str, ...] = ()
 
 
 @dataclass
@@ -232,6 +239,9 @@ class TrainConfig:
                                 f"{pattern!r}: {scale!r}")
         if not all(optim.freeze):
             raise UserError(f"optim.freeze lists parameter-name patterns (e.g. ['encoder.*']), got {list(optim.freeze)!r}")
+        if not all(isinstance(pattern, str) and pattern for pattern in optim.muon):
+            raise UserError(f"optim.muon lists parameter-name patterns (e.g. ['encoder.blocks.*']), got "
+                            f"{list(optim.muon)!r}")
         self.loss.validate()
         if self.loss.weight_dense_depth > 0 and not model.dense_depth_head:
             raise UserError("loss.weight_dense_depth needs model.overrides.dense_depth_head: true")

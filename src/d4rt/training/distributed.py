@@ -209,8 +209,9 @@ def model_state(model: nn.Module) -> dict[str, torch.Tensor]:
 
 
 def optimizer_state(model: nn.Module, optimizer: torch.optim.Optimizer) -> dict:
-    """Full optimiser state dict (``state`` keyed by parameter name) on CPU on rank 0; a collective."""
-    return get_optimizer_state_dict(unwrap(model), optimizer, options=_full())
+    """Full optimiser state dict (``state`` keyed by parameter name) on CPU on rank 0; a collective. An
+    :class:`~d4rt.training.optimization.OptimizerChain` gives one dict for all its optimisers."""
+    return get_optimizer_state_dict(unwrap(model), _optimizers(optimizer), options=_full())
 
 
 def load_model_state(model: nn.Module, state: dict[str, torch.Tensor], context: DistributedContext) -> None:
@@ -222,4 +223,9 @@ def load_model_state(model: nn.Module, state: dict[str, torch.Tensor], context: 
 def load_optimizer_state(model: nn.Module, optimizer: torch.optim.Optimizer, state: dict,
                          context: DistributedContext) -> None:
     options = _full(broadcast_from_rank0=context.distributed)
-    set_optimizer_state_dict(unwrap(model), optimizer, state, options=options)
+    set_optimizer_state_dict(unwrap(model), _optimizers(optimizer), state, options=options)
+
+
+def _optimizers(optimizer) -> torch.optim.Optimizer | tuple[torch.optim.Optimizer, ...]:
+    """What torch's state-dict functions take: the optimiser, or every optimiser of a chain (AdamW and Muon)."""
+    return getattr(optimizer, "optimizers", optimizer)
