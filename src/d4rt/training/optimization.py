@@ -98,7 +98,7 @@ class OptimizerChain:
 
 def muon_matrices(model: nn.Module, patterns: Sequence[str]) -> set[str]:
     """Names of the trained 2-D weights that match one of ``patterns`` (:mod:`fnmatch`, bare-model names): the
-    parameters Muon steps. Biases, norms and tables of other ranks that a pattern also matches stay with AdamW.
+    parameters Muon steps. Biases, norms and position tables that a pattern also matches stay with AdamW.
 
     Raises :class:`UserError` if a pattern matches no trained 2-D weight, or the model is sharded (FSDP):
     Muon orthogonalises whole matrices.
@@ -146,8 +146,6 @@ def build_optimizer(model: nn.Module, config: OptimConfig) -> torch.optim.AdamW 
     _refuse_unmatched("optim.lr_scale", [pattern for i, (pattern, _) in enumerate(patterns) if i not in used])
     adamw_groups, muon_groups = [], []
     for (by_muon, which, decayed), params in groups.items():
-        if not params and by_muon:
-            continue
         group = {"params": params, "weight_decay": config.weight_decay if decayed else 0.0}
         if which >= 0:
             group["lr_scale"] = float(patterns[which][1])

@@ -2,12 +2,12 @@
 
 One optimiser step = ``run.grad_accum`` micro-batches of ``data.batch_size`` clips on every rank. Per
 step: set the scheduled learning rate, forward + loss + backward per micro-batch (bf16 autocast on GPU;
-gradient sync only on the last micro-batch), clip the gradient norm, AdamW step. Every
-``run.log_every`` steps the loss terms (averaged over ranks and micro-batches), learning rate, gradient
-norm and throughput are logged; every ``validation.every`` steps the model (with ``optim.ema_decay``: the
-average of its weights) is validated on held-out clips; every ``run.checkpoint_every`` steps (and at the end)
-a checkpoint is written atomically and its weights are published as ``<run>/model.safetensors`` +
-``<run>/config.json``.
+gradient sync only on the last micro-batch), clip the gradient norm, optimiser step (AdamW; with
+``optim.muon`` Muon too). Every ``run.log_every`` steps the loss terms (averaged over ranks and micro-batches),
+learning rate, gradient norm and throughput are logged; every ``validation.every`` steps the model (with
+``optim.ema_decay``: the average of its weights) is validated on held-out clips; every ``run.checkpoint_every``
+steps (and at the end) a checkpoint is written atomically and its weights are published as
+``<run>/model.safetensors`` + ``<run>/config.json``.
 
 Run directory::
 
