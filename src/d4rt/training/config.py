@@ -123,7 +123,9 @@ class OptimConfig:
     steps) instead of AdamW, at AdamW's rate, schedule and weight decay (Moonshot's RMS matching); biases, norms,
     tables and every weight no pattern matches stay with AdamW. Empty: AdamW alone, as the paper. Not with FSDP. Why:
     Muon trains transformers' hidden matrices in fewer steps than AdamW (Jordan et al. 2024; Liu et al., "Muon is
-    Scalable for LLM Training", 2025), and CPU steps are this project's budget (stage 156, docs/training.md).
+    Scalable for LLM Training", 2025), and steps are this project's budget. Measured here (docs/training.md): from
+    the shipped weights it moved the model as AdamW does (stage 156); from scratch, with the blocks at three times
+    the rate (``lr_scale``), it reached a lower held-out loss in 1,000 steps than AdamW did (at AdamW's rate, not).
     """
 
     lr: float = 1e-4
