@@ -51,9 +51,9 @@ def build_config(args, **changes) -> TrainConfig:
                                                          if args.tubelet_stride else {})}},
         "data": {"batch_size": args.batch_size, "workers": changes.get("workers", args.workers), "dataset": dataset},
         "optim": {"warmup_steps": 1, "freeze": args.freeze, "muon": args.muon},
-        "run": {"max_steps": args.steps, "grad_accum": args.grad_accum, "device": args.device, "precision": changes.get("precision", args.precision),
-                "strategy": args.strategy, "log_every": args.warmup, "checkpoint_every": 10 ** 9,
-                "tensorboard": False, "progress": False},
+        "run": {"max_steps": args.steps, "grad_accum": args.grad_accum, "device": args.device,
+                "precision": changes.get("precision", args.precision), "strategy": args.strategy,
+                "log_every": args.warmup, "checkpoint_every": 10 ** 9, "tensorboard": False, "progress": False},
     })
 
 
@@ -254,8 +254,11 @@ def main() -> None:
           f"batch {args.batch_size} x {world} process(es), {args.strategy}, {args.precision}"
           + (f", frozen {' '.join(args.freeze)}" if args.freeze else "")
           + (f", {args.tubelet_frames}-frame tubelets" if args.tubelet_frames else "")
-          + (f", a tubelet every {args.tubelet_stride} frame(s)" if args.tubelet_stride else ""))
-    print(f"  {clips / (args.batch_size * world * args.grad_accum):.2f} steps/s   {clips:.2f} clips/s   {clips * args.queries:,.0f} queries/s")
+          + (f", a tubelet every {args.tubelet_stride} frame(s)" if args.tubelet_stride else "")
+          + (f", {args.grad_accum} micro-batches a step" if args.grad_accum > 1 else "")
+          + (f", Muon for {' '.join(args.muon)}" if args.muon else ""))
+    steps = clips / (args.batch_size * world * args.grad_accum)
+    print(f"  {steps:.2f} steps/s   {clips:.2f} clips/s   {clips * args.queries:,.0f} queries/s")
     if torch.cuda.is_available():
         print(f"  peak GPU memory (rank 0): {torch.cuda.max_memory_allocated() / 2**30:.2f} GiB")
 
