@@ -6,3 +6,9 @@ class UserError(ValueError):
 
     The CLI prints it without a traceback and exits with status 2.
     """
+
+
+class DegenerateFit(UserError):
+    """The points given leave a fit undetermined (too few valid points, collinear ones, every point behind the
+    camera). From a model's answers it is a property of the weights, not of the call: validation during
+    training records it for that clip and goes on."""

@@ -7,10 +7,13 @@ import json
 
 import numpy as np
 import pytest
+import torch
 from safetensors.torch import load_file
 
 from d4rt.errors import UserError
+from d4rt.model import D4RT
 from d4rt.training import TrainConfig, train
+from d4rt.training.validation import Validator
 from training_helpers import fast_config
 
 
@@ -78,6 +81,37 @@ def test_keep_best_publishes_the_best_validated_checkpoint_and_survives_a_resume
         train(TrainConfig.from_dict(fast_config(clip_dir, run=steps, validation=bad)), tmp_path / "bad")
     with pytest.raises(UserError, match="keep_best_mode"):
         TrainConfig.from_dict(fast_config(clip_dir, validation={**validation, "keep_best_mode": "up"})).validate()
+
+
+def test_a_model_that_cannot_be_reconstructed_is_validated_and_the_run_goes_on(tmp_path, clip_dir):
+    # A collapsed model: every point it answers lies on the plane 1 unit behind the camera, so no focal length
+    # can be fitted (the failure a diverged run met at its last validation).
+    validation = {"every": 1, "directory": str(clip_dir), "num_clips": 1, "frames": 4, "track_points": 16,
+                  "num_queries": 64, "keep_best": "abs_rel_scale_shift"}
+    still = {"optim": {"lr": 1e-12, "min_lr": 1e-12, "warmup_steps": 0}, "run": {"max_steps": 2, "checkpoint_every": 2},
+             "validation": validation}  # a rate too small to move the weights
+    config = TrainConfig.from_dict(fast_config(clip_dir, **still))
+    collapsed = D4RT(config.model.build())
+    points = collapsed.decoder.heads.heads["points"]
+    with torch.no_grad():
+        points.weight[2].zero_()
+        points.bias[2] = -1.0
+    validator = Validator(config.validation, config.loss, config.data.dataset.sampler)
+    scalars = validator.run(collapsed, torch.autocast("cpu", enabled=False))
+    assert scalars["val/reconstruction_failures"] == 1.0 and np.isfinite(scalars["val/loss/3d"])
+    assert "val/abs_rel_scale_shift" not in scalars and "val/ate" not in scalars  # scored on no clip
+    assert len(validator.failures) == 1 and validator.failures[0].startswith("clip_0: too few valid points")
+
+    # Trained on from it without moving, the run validates every step, keeps no best (its metric was never
+    # computed) and still writes its last checkpoint.
+    collapsed.save_pretrained(tmp_path / "collapsed")
+    model = {"preset": "tiny", "overrides": {"max_frames": 4}, "init_from": str(tmp_path / "collapsed")}
+    config = TrainConfig.from_dict(fast_config(clip_dir, model=model, **still))
+    result = train(config, tmp_path / "run")
+    assert result.step == 2 and (tmp_path / "run" / "checkpoints" / "step-00000002").is_dir()
+    logged = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert [row["val/reconstruction_failures"] for row in logged if "val/loss/3d" in row] == [1.0, 1.0]
+    assert not (tmp_path / "run" / "best").exists()
 
 
 def test_a_frozen_encoder_keeps_the_weights_it_started_from_while_the_rest_trains(tmp_path, clip_dir):

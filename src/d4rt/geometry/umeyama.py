@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import torch
 
-from d4rt.errors import UserError
+from d4rt.errors import DegenerateFit, UserError
 
 
 @dataclass
@@ -74,14 +74,14 @@ def batched_umeyama(src: torch.Tensor, dst: torch.Tensor, weights: torch.Tensor 
     short = (count < min_points) | (total <= 0)
     if bool(short.any()):
         got = int(count[short.nonzero()[0, 0]])
-        raise UserError(f"umeyama needs at least {min_points} weighted, finite correspondences, got {got}")
+        raise DegenerateFit(f"umeyama needs at least {min_points} weighted, finite correspondences, got {got}")
     w = w / total[:, None]
     mx, my = (w[..., None] * x).sum(1), (w[..., None] * y).sum(1)  # (F, 3)
     xc, yc = x - mx[:, None], y - my[:, None]
     cov = (yc * w[..., None]).transpose(1, 2) @ xc  # (F, 3, 3): sum_i w_i y_i x_i^T
     u, sing, vt = torch.linalg.svd(cov)
     if not allow_degenerate and bool((sing[:, 1] <= 1e-12 * sing[:, 0].clamp(min=1e-300)).any()):
-        raise UserError("umeyama: the points are collinear (or coincide); a rotation is not determined")
+        raise DegenerateFit("umeyama: the points are collinear (or coincide); a rotation is not determined")
     d = torch.ones(len(cov), 3, dtype=torch.float64, device=x.device)
     d[:, 2] = torch.where(torch.linalg.det(u) * torch.linalg.det(vt) < 0, -1.0, 1.0)
     rot = u @ torch.diag_embed(d) @ vt

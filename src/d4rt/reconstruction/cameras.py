@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from d4rt.errors import UserError
+from d4rt.errors import DegenerateFit, UserError
 from d4rt.geometry.umeyama import batched_umeyama
 
 
@@ -31,7 +31,7 @@ def intrinsics_from_points(points: np.ndarray, uv: np.ndarray, confidence: np.nd
     ok &= points[:, 2] > 0
     p, uv, c = points[ok], uv[ok], confidence[ok]
     if len(p) < 4:
-        raise UserError(f"too few valid points ({len(p)}) to estimate intrinsics")
+        raise DegenerateFit(f"too few valid points ({len(p)}) to estimate intrinsics")
     a, b = p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]
     x_pix, y_pix = uv[:, 0] * width - 0.5, uv[:, 1] * height - 0.5
     if method == "median":
@@ -62,7 +62,7 @@ def _focal_ratios(offset: np.ndarray, ratio: np.ndarray, min_offset: float = 0.0
 
 def _median_focal(values: np.ndarray) -> float:
     if not len(values):
-        raise UserError("no points far enough from the image centre to estimate the focal length")
+        raise DegenerateFit("no points far enough from the image centre to estimate the focal length")
     return float(np.median(values))
 
 

@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from d4rt.config import GRAPH_GAPS, check_pose_pairs
-from d4rt.errors import UserError
+from d4rt.errors import DegenerateFit, UserError
 from d4rt.geometry.transforms import similarity_times_pose
 from d4rt.geometry.umeyama import Similarity, umeyama
 from d4rt.reconstruction.cameras import pose_graph, relative_poses
@@ -96,7 +96,7 @@ def align_pair(ask_previous: Callable[[np.ndarray], dict], ask_this: Callable[[n
     ok = np.isfinite(conf) & (conf > 0) & np.isfinite(prev["points"]).all(1) & np.isfinite(here["points"]).all(1)
     keep = np.nonzero(ok)[0]
     if len(keep) < 3:
-        raise UserError(f"windows {index - 1} and {index} share too few confident points to be aligned")
+        raise DegenerateFit(f"windows {index - 1} and {index} share too few confident points to be aligned")
     # The most confident align_fraction of the shared points (ties broken by order).
     order = keep[np.argsort(-conf[keep], kind="stable")]
     keep = order[: max(3, int(np.ceil(align_fraction * len(order))))]

@@ -300,6 +300,10 @@ class Trainer:
                         scalars = self._validate(model, validator)
                         logger.log(step, scalars)
                         last.update(scalars)
+                        if validator.failures:
+                            logger.message(f"validation at step {step}: {len(validator.failures)} of "
+                                           f"{len(validator.clips)} clips could not be reconstructed and are left "
+                                           f"out of its benchmark metrics ({validator.failures[0]})")
                         if cfg.validation.keep_best is not None:
                             improved = self._improves_best(best, scalars)
                     scheduled = step % run.checkpoint_every == 0 or step == run.max_steps
@@ -349,6 +353,12 @@ class Trainer:
         one-line error on every rank rather than on the main rank alone while the others wait."""
         validation, context = self.config.validation, self.context
         key = f"val/{validation.keep_best}"
+        # A validation that could not reconstruct every clip scored its metrics on fewer clips (or none): it
+        # cannot set a best of them. Its loss terms cover every clip.
+        incomplete = (scalars.get("val/reconstruction_failures", 0.0) > 0
+                      and not validation.keep_best.startswith("loss/"))
+        if context.any_flag(context.is_main and incomplete):
+            return False
         if context.any_flag(context.is_main and key not in scalars):
             names = ", ".join(sorted(k.removeprefix("val/") for k in scalars))
             raise UserError(f"validation.keep_best {validation.keep_best!r} is not a validation metric"

@@ -10,6 +10,11 @@ Each held-out clip gives
   TAPVid-3D APD3D / AJ / OA of ``track_points`` oracle tracks), aggregated over the clips with the
   harness's rules and logged as ``val/<metric>`` (e.g. ``val/abs_rel_scale_shift``, ``val/ate``,
   ``val/apd3d``).
+
+A clip the model cannot be reconstructed from (``DegenerateFit``: e.g. a collapsed model puts every
+point behind the camera) still gives its loss terms; it is left out of the reconstruction metrics, counted in
+``val/reconstruction_failures`` and named in ``Validator.failures``, so a diverged run keeps training and
+checkpointing instead of stopping at its validation.
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ import numpy as np
 import torch
 
 from d4rt.data import AugmentConfig, QuerySampler, QuerySamplerConfig, make_training_sample
-from d4rt.errors import UserError
+from d4rt.errors import DegenerateFit, UserError
 from d4rt.evaluation.benchmarks import Benchmark
 from d4rt.evaluation.harness import aggregate, evaluate_sequence
 from d4rt.evaluation.predictions import ReconstructionPredictor
@@ -61,6 +66,7 @@ class Validator:
         self.loss = loss
         self.sampler = QuerySampler(QuerySamplerConfig(**{**vars(sampler), "num_queries": config.num_queries}))
         self._clips: list[Clip] | None = None
+        self.failures: list[str] = []  # the last run's clips that could not be reconstructed, with why
 
     @property
     def clips(self) -> list[Clip]:
@@ -70,7 +76,8 @@ class Validator:
 
     @torch.no_grad()
     def run(self, model: D4RT, autocast: torch.autocast) -> dict[str, float]:
-        """Metrics over the held-out clips, keyed ``val/loss/<term>`` and ``val/<metric>``."""
+        """Metrics over the held-out clips, keyed ``val/loss/<term>``, ``val/<metric>`` and
+        ``val/reconstruction_failures`` (a metric no clip could be scored on is absent)."""
         was_training = model.training
         model.eval()
         device = next(model.parameters()).device
@@ -80,6 +87,7 @@ class Validator:
                                                                                                 progress=False))
         losses: dict[str, list[float]] = {}
         rows = []
+        self.failures = []
         for index, clip in enumerate(self.clips):
             view = View((clip.height, clip.width), (0, 0, clip.width, clip.height), size, tuple(range(clip.num_frames)))
             rng = np.random.default_rng([self.config.seed, index])
@@ -92,11 +100,16 @@ class Validator:
             for key, value in d4rt_loss(out, batch, self.loss)[1].items():
                 losses.setdefault(key, []).append(float(value))
             sequence = sequence_from_clip(clip, f"clip_{index}", self.config.track_points, self.config.seed + index)
-            with autocast:
-                prediction = predictor.predict(sequence, set(benchmark.tasks))
+            try:
+                with autocast:
+                    prediction = predictor.predict(sequence, set(benchmark.tasks))
+            except DegenerateFit as error:
+                self.failures.append(f"{sequence.name}: {error}")
+                continue
             rows.append(evaluate_sequence(benchmark, sequence, prediction))
         model.train(was_training)
         scalars = {f"val/loss/{key}": float(np.mean(values)) for key, values in losses.items()}
+        scalars["val/reconstruction_failures"] = float(len(self.failures))
         scalars.update({f"val/{metric_name(key)}": float(value) for key, value in aggregate(benchmark, rows).items()
                         if value is not None})
         return scalars
